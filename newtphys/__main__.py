@@ -1,0 +1,3 @@
+from newtphys.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,114 @@
+"""``python -m newtphys {validate,info,view}``: tools over shards that need only the core."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from newtphys import schema
+from newtphys.shards import ShardError, ShardReader, list_shards
+from newtphys.validate import validate_paths
+
+
+def _shards_under(path: Path) -> list[Path]:
+    if path.is_file():
+        return [path]
+    found = list_shards(path)
+    for sub in sorted(p for p in path.iterdir() if p.is_dir()) if path.is_dir() else []:
+        found += list_shards(sub)
+    return found
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    problems = validate_paths(args.paths)
+    errors = [p for p in problems if p.severity == "error"]
+    for p in problems:
+        print(p)
+    checked = sum(len(_shards_under(Path(p))) for p in args.paths if Path(p).exists())
+    print(f"checked {checked} shard(s): {len(errors)} error(s), {len(problems) - len(errors)} warning(s)")
+    return 1 if errors else 0
+
+
+def _human(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024:
+            return f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    path = Path(args.path)
+    shards = _shards_under(path)
+    if not shards:
+        print(f"error: {path}: no shards found", file=sys.stderr)
+        return 1
+    header = f"{'shard':<28} {'sequence':<24} {'split':<17} {'frames':>6} {'HxW':>9} {'objects':>7} {'g m/s2':>7} {'size':>10}"
+    print(header)
+    print("-" * len(header))
+    total_seq = total_frames = total_bytes = 0
+    maps_seen: set[str] = set()
+    for shard in shards:
+        size = shard.stat().st_size
+        total_bytes += size
+        try:
+            with ShardReader(shard) as r:
+                for i, sid in enumerate(r.sequences()):
+                    ws = r.world_state(sid)
+                    maps_seen |= {n for n in schema.MAP_NAMES if n in r.file[sid]}
+                    h, w = ws.image_size
+                    print(f"{(shard.parent.name + '/' + shard.name) if i == 0 else '':<28} {sid:<24} {ws.split:<17} "
+                          f"{ws.num_frames:>6} {f'{h}x{w}':>9} {len(ws.objects):>7} {ws.gravity_magnitude:>7.2f} "
+                          f"{_human(size) if i == 0 else '':>10}")
+                    total_seq += 1
+                    total_frames += ws.num_frames
+        except ShardError as e:
+            print(f"{shard.name:<28} error: {e}")
+    print("-" * len(header))
+    print(f"{len(shards)} shard(s), {total_seq} sequence(s), {total_frames} frame(s), {_human(total_bytes)} on disk")
+    print(f"maps: {', '.join(n for n in schema.MAP_NAMES if n in maps_seen)}")
+    return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from newtphys.viz import view_sequence
+
+    path = Path(args.path)
+    shards = _shards_under(path)
+    shard = None
+    for s in shards:
+        with ShardReader(s) as r:
+            if args.sequence is None or args.sequence in r.sequences():
+                shard = s
+                break
+    if shard is None:
+        print(f"error: {path}: no shard holds sequence {args.sequence!r}", file=sys.stderr)
+        return 1
+    for out in view_sequence(shard, args.sequence, args.out, video=not args.no_video):
+        print(f"wrote {out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m newtphys", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+    v = sub.add_parser("validate", help="check shards / split directories against the data contract")
+    v.add_argument("paths", nargs="+", help="shard files, split directories or dataset roots")
+    v.set_defaults(func=cmd_validate)
+    i = sub.add_parser("info", help="summary table of the shards under PATH")
+    i.add_argument("path")
+    i.set_defaults(func=cmd_info)
+    w = sub.add_parser("view", help="contact sheet PNG and video of one sequence")
+    w.add_argument("path", help="a shard, split directory or dataset root")
+    w.add_argument("--sequence", default=None, help="sequence id (default: the first one found)")
+    w.add_argument("--out", required=True, help="output path; .png and .mp4/.gif are written beside it")
+    w.add_argument("--no-video", action="store_true")
+    w.set_defaults(func=cmd_view)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
