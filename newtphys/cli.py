@@ -22,7 +22,7 @@ def _shards_under(path: Path) -> list[Path]:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    problems = validate_paths(args.paths)
+    problems = validate_paths(args.paths, deep=args.deep)
     errors = [p for p in problems if p.severity == "error"]
     for p in problems:
         print(p)
@@ -96,6 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     v = sub.add_parser("validate", help="check shards / split directories against the data contract")
     v.add_argument("paths", nargs="+", help="shard files, split directories or dataset roots")
+    v.add_argument("--deep", action="store_true",
+                   help="also run the cross-map physics checks (flow vs scene flow, gravity vs mass, labels, contacts)")
     v.set_defaults(func=cmd_validate)
     i = sub.add_parser("info", help="summary table of the shards under PATH")
     i.add_argument("path")

@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 
 from newtphys import schema
-from newtphys.shards import TMP_MARKER, list_shards
+from newtphys.shards import TMP_MARKER, ShardReader, list_shards
 from newtphys.world_state import WorldState, WorldStateError
 
 
@@ -41,8 +41,9 @@ def _frames(ds: h5py.Dataset) -> Iterable[np.ndarray]:
 
 
 class _ShardChecker:
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, deep: bool = False) -> None:
         self.path = path
+        self.deep = deep
         self.problems: list[Problem] = []
 
     def add(self, message: str, sequence: str = "", dataset: str = "", severity: str = "error") -> None:
@@ -63,11 +64,22 @@ class _ShardChecker:
                 if not isinstance(item, h5py.Group):
                     self.add("top-level item is not a sequence group", sid)
                     continue
+                before = len(self.problems)
                 try:
                     self._check_sequence(sid, item)
                 except (OSError, RuntimeError) as e:  # HDF5 read errors inside a corrupted file
                     self.add(f"read error (corrupted data?): {e}", sid)
+                if self.deep and len(self.problems) == before:
+                    self._check_physics(sid)
         return self.problems
+
+    def _check_physics(self, sid: str) -> None:
+        from newtphys.consistency import TOLERANCES, check_sequence, failing
+
+        with ShardReader(self.path) as reader:
+            residuals = check_sequence(reader.read_sequence(sid))
+        for r in failing(residuals):
+            self.add(f"cross-map check failed: {r} (tolerance {TOLERANCES[r.name]:g} {r.unit})", sid)
 
     def _check_file_attrs(self, f: h5py.File) -> None:
         for attr in schema.FILE_ATTRS:
@@ -181,17 +193,18 @@ class _ShardChecker:
                     return
 
 
-def validate_shard(path: str | os.PathLike) -> list[Problem]:
-    return _ShardChecker(Path(path)).run()
+def validate_shard(path: str | os.PathLike, deep: bool = False) -> list[Problem]:
+    """Contract checks of one shard; ``deep`` adds the cross-map physics checks of newtphys.consistency."""
+    return _ShardChecker(Path(path), deep).run()
 
 
-def validate_split_dir(split_dir: str | os.PathLike) -> list[Problem]:
+def validate_split_dir(split_dir: str | os.PathLike, deep: bool = False) -> list[Problem]:
     """Every shard of a split directory plus its ``index.json``."""
     split_dir = Path(split_dir)
     problems: list[Problem] = []
     shards = list_shards(split_dir)
     for path in shards:
-        problems += validate_shard(path)
+        problems += validate_shard(path, deep)
     for stale in sorted(split_dir.glob(f"*{TMP_MARKER}*")):
         problems.append(
             Problem(str(stale), "temporary file of an interrupted writer (safe to delete)", severity="warning")
@@ -228,20 +241,20 @@ def validate_split_dir(split_dir: str | os.PathLike) -> list[Problem]:
     return problems
 
 
-def validate_paths(paths: Iterable[str | os.PathLike]) -> list[Problem]:
+def validate_paths(paths: Iterable[str | os.PathLike], deep: bool = False) -> list[Problem]:
     """Validate shard files, split directories, or dataset roots holding split directories."""
     problems: list[Problem] = []
     for raw in paths:
         p = Path(raw)
         if p.is_file():
-            problems += validate_shard(p)
+            problems += validate_shard(p, deep)
         elif p.is_dir():
             split_dirs = [p] if (list_shards(p) or (p / schema.INDEX_FILENAME).exists()) else []
             split_dirs += [d for d in sorted(p.iterdir()) if d.is_dir() and (list_shards(d) or (d / schema.INDEX_FILENAME).exists())]
             if not split_dirs:
                 problems.append(Problem(str(p), "no shards and no index.json found"))
             for d in split_dirs:
-                problems += validate_split_dir(d)
+                problems += validate_split_dir(d, deep)
         else:
             problems.append(Problem(str(p), "no such file or directory"))
     return problems
