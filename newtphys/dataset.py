@@ -143,7 +143,7 @@ class ClipDataset(Dataset):
         reader = self.readers[ref.shard]
         last = ref.start + self.span - 1
         rgb = reader.read(ref.sequence_id, schema.RGB, ref.start, last + 1)[:: self.frame_step]
-        frames = torch.from_numpy(np.ascontiguousarray(rgb)).permute(0, 3, 1, 2).float() / 255.0
+        frames = torch.from_numpy(np.ascontiguousarray(rgb.transpose(0, 3, 1, 2), dtype=np.float32) / np.float32(255.0))
         item: dict[str, Any] = {"frames": self._resize(frames, "bilinear")}
         instances = reader.read(ref.sequence_id, schema.INSTANCES, last, last + 1)[0]
         inst = self._resize(torch.from_numpy(instances.astype(np.int64)), "nearest")
@@ -154,13 +154,10 @@ class ClipDataset(Dataset):
                 item[name] = inst
                 continue
             arr = reader.read(ref.sequence_id, name, last, last + 1)[0]
-            if spec.kind in (schema.MapKind.LABEL,):
-                t = torch.from_numpy(arr.astype(np.int64))
-            else:
-                t = torch.from_numpy(arr.astype(np.float32))
-            if t.ndim == 3:  # (H, W, C) -> (C, H, W)
-                t = t.permute(2, 0, 1).contiguous()
-            item[name] = self._resize(t, "nearest")
+            if arr.ndim == 3:  # (H, W, C) -> (C, H, W)
+                arr = arr.transpose(2, 0, 1)
+            dtype = np.int64 if spec.kind == schema.MapKind.LABEL else np.float32
+            item[name] = self._resize(torch.from_numpy(np.ascontiguousarray(arr, dtype=dtype)), "nearest")
         ws = reader.world_state(ref.sequence_id)
         K = torch.from_numpy(reader.intrinsics(ref.sequence_id).astype(np.float32))
         if self.image_size is not None:

@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 
 COMPRESSION = "gzip"
 COMPRESSION_LEVEL = 4
+CODECS: tuple[str | None, ...] = ("gzip", "lzf", None)
+"""Codecs h5py decodes without plugins (gzip is also read by every other HDF5 build; lzf only by h5py)."""
 TMP_MARKER = ".tmp-"
 
 
@@ -114,15 +116,19 @@ class ShardWriter:
         shard_index: int,
         config_yaml: str = "",
         generator: str = f"newtphys {__version__}",
+        compression: str | None = COMPRESSION,
         compression_level: int = COMPRESSION_LEVEL,
     ) -> None:
+        if compression not in CODECS:
+            raise ValueError(f"compression must be one of {CODECS}, got {compression!r}")
         self.split_dir = Path(out_dir) / split
         self.split = split
         self.final_path = self.split_dir / schema.shard_filename(shard_index)
         self.tmp_path = self.final_path.with_name(f"{self.final_path.name}{TMP_MARKER}{os.getpid()}")
         self.config_yaml = config_yaml
         self.generator = generator
-        self.compression_level = compression_level
+        self.compression = compression
+        self.compression_level = compression_level if compression == "gzip" else None
         self._file: h5py.File | None = None
         self._sequences: list[tuple[str, int]] = []
 
@@ -191,14 +197,14 @@ class ShardWriter:
         g = self._file.create_group(sequence_id)
         for name, spec in schema.MAPS.items():
             arr = np.ascontiguousarray(maps[name])
-            chunks = (1,) + arr.shape[1:] if arr.size else None
+            compress = self.compression is not None and arr.size > 0
             ds = g.create_dataset(
                 name,
                 data=arr,
-                chunks=chunks,
-                compression=COMPRESSION if arr.size else None,
-                compression_opts=self.compression_level if arr.size else None,
-                shuffle=bool(arr.size) and arr.dtype.itemsize > 1,
+                chunks=(1,) + arr.shape[1:] if arr.size else None,
+                compression=self.compression if compress else None,
+                compression_opts=self.compression_level if compress else None,
+                shuffle=compress and arr.dtype.itemsize > 1,
             )
             ds.attrs[schema.UNITS_ATTR] = spec.unit
         for key, arr in ((schema.CAMERA_K, K), (schema.CAMERA_WORLD_TO_CAMERA, world_to_camera)):
