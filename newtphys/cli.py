@@ -1,4 +1,4 @@
-"""``python -m newtphys {validate,info,view}``: tools over shards that need only the core."""
+"""``python -m newtphys {validate,info,view,stats}``: tools over shards that need only the core."""
 
 from __future__ import annotations
 
@@ -91,6 +91,20 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_stats(args: argparse.Namespace) -> int:
+    from newtphys.stats import _markdown, write_stats
+
+    out = Path(args.out) if args.out else Path(args.path) / "stats"
+    try:
+        summary = write_stats(args.path, out)
+    except FileNotFoundError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    print(_markdown(summary))
+    print(f"wrote {out / 'stats.png'}, {out / 'summary.md'}, {out / 'summary.json'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m newtphys", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -108,6 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--out", required=True, help="output path; .png and .mp4/.gif are written beside it")
     w.add_argument("--no-video", action="store_true")
     w.set_defaults(func=cmd_view)
+    st = sub.add_parser("stats", help="dataset statistics plots and summary table (from world states)")
+    st.add_argument("path", help="a split directory or dataset root")
+    st.add_argument("--out", default=None, help="output directory (default: PATH/stats)")
+    st.set_defaults(func=cmd_stats)
     return p
 
 
