@@ -1,0 +1,342 @@
+"""Scenario -> simulate -> render every map -> world state: one sequence of the data contract.
+
+Steps (each reads the same :class:`~data_gen.scene.Scenario`, none changes it):
+
+1. **Objects** (:func:`build_objects`): the library asset is scaled and
+   coloured; interior points (simulation only, never rendered) and surface
+   Gaussians (rendering only) are sampled in the asset's local frame.
+2. **Simulate** (:mod:`data_gen.sim`): reduced elastodynamics of all objects
+   in the static scene under the scenario's gravity.
+3. **Render** (:func:`render_sequence`): per frame, every surface Gaussian is
+   moved through the skinning map (centre) and the local deformation gradient
+   (covariance ``F Σ Fᵀ``); RGB is alpha-composited, labels come from the
+   nearest covering Gaussian (binarized opacity) and each Gaussian carries
+   the values of its nearest cubature point (contact, stress) and of its
+   object (id, material, class, mass x g). Scene flow is the displacement of
+   that Gaussian to the next frame; optical flow is its projection (via
+   depth and both cameras, :func:`newtphys.consistency.optical_flow_from_scene_flow`),
+   so the two agree by construction.
+4. **World state** (:func:`build_world_state`) from the simulation record and
+   the rendered visibility.
+
+A sequence that cannot be used raises :class:`SequenceRejected` with the
+reason (NaN in the simulation, tunnelling, objects out of view); the
+generator logs it and draws a replacement.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from data_gen.assets.gaussians_from_geometry import SurfaceGaussians, gaussians_from_object, gaussians_from_scene
+from data_gen.assets.library import ObjectAsset, get_object, semantic_class_table
+from data_gen.assets.materials import get_material, material_id_table
+from data_gen.assets.scenes import StaticScene as SceneLayout
+from data_gen.assets.scenes import get_scene
+from data_gen.cameras import path_from_spec
+from data_gen.render.gaussians import Gaussians
+from data_gen.render.labels import LabelRasterizer, gather_labels
+from data_gen.render.rgb import RgbRasterizer
+from data_gen.scene import Scenario
+from data_gen.sim.material import Material
+from data_gen.sim.presets import QualityPreset
+from data_gen.sim.recording import SimulationResult
+from data_gen.sim.solver import SimulationError
+from data_gen.sim.static_scene import StaticBox
+from data_gen.sim.static_scene import StaticScene as SimStaticScene
+from data_gen.sim.world import SimObjectSpec, Simulator
+from newtphys import geometry, schema
+from newtphys.consistency import optical_flow_from_scene_flow
+from newtphys.shards import SequenceArrays
+from newtphys.world_state import (
+    CameraPose,
+    CollisionEvent,
+    FrameState,
+    ObjectFrameState,
+    ObjectInfo,
+    SceneInfo,
+    SimulationInfo,
+    WorldState,
+)
+
+log = logging.getLogger(__name__)
+
+BACKGROUND_RGB = (0.62, 0.70, 0.80)
+"""Sky colour behind the scene (linear RGB in [0, 1])."""
+
+
+class SequenceRejected(RuntimeError):
+    """This sequence cannot be used; ``reason`` is a short machine-readable tag."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How densely objects and the scene are covered by Gaussians and sampled by particles."""
+
+    object_gaussians: int = 4000
+    """Surface Gaussians per object."""
+    interior_points: int = 1500
+    """Simulation particles per object (volume and mass sampling)."""
+    scene_spacing_m: float = 0.025
+    """Grid spacing of the static scene's Gaussians."""
+    min_visible_objects: int = 1
+    """Objects that must be visible (>= min_visible_pixels) in the last frame."""
+    min_visible_pixels: int = 16
+    device: str = "cpu"
+    num_threads: int = 2
+
+
+@dataclass
+class SceneObject:
+    """One scenario object, ready for simulation and rendering (local frame of the asset)."""
+
+    object_id: int
+    asset: ObjectAsset
+    surface: SurfaceGaussians
+    interior_points_m: np.ndarray
+    volume_m3: float
+    material: Material
+    material_id: int
+    semantic_id: int
+
+
+def scene_layout(name: str) -> SceneLayout:
+    return get_scene(name)
+
+
+def sim_static_scene(layout: SceneLayout) -> SimStaticScene:
+    """The kinematic collision geometry of a layout: ground plane plus oriented boxes."""
+    return SimStaticScene(
+        ground=True,
+        boxes=tuple(StaticBox(tuple(b.center_m), tuple(b.half_extents_m), tuple(b.rotation_wxyz)) for b in layout.boxes),
+    )
+
+
+def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObject]:
+    out = []
+    mat_ids = {name: int(k) for k, name in material_id_table().items()}
+    for p in scenario.objects:  # loop over objects
+        rng = np.random.default_rng(p.color_seed)
+        asset = get_object(p.asset, size_m=p.size_m).with_material_color(p.material, rng)
+        surface = gaussians_from_object(asset, rng, count=settings.object_gaussians)
+        volume = asset.volume_m3()
+        spacing = (volume / settings.interior_points) ** (1.0 / 3.0)
+        interior = asset.interior_points(spacing, rng)
+        if len(interior) < 8:
+            raise SequenceRejected("degenerate_object", f"object {p.object_id} ({p.asset}) has {len(interior)} interior points")
+        out.append(SceneObject(
+            object_id=p.object_id, asset=asset, surface=surface, interior_points_m=interior, volume_m3=volume,
+            material=Material(p.young_modulus_pa, p.poisson_ratio, p.density_kg_m3),
+            material_id=mat_ids[p.material], semantic_id=asset.semantic_id,
+        ))
+    return out
+
+
+def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, preset: QualityPreset,
+             skinning_cache_dir: str | None = None) -> SimulationResult:
+    specs = [
+        SimObjectSpec(
+            name=f"{o.object_id}:{p.asset}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
+            material=o.material, position_m=p.position_m, orientation_wxyz=p.orientation_wxyz,
+            velocity_m_s=p.velocity_m_s, angular_velocity_rad_s=p.angular_velocity_rad_s,
+        )
+        for o, p in zip(objects, scenario.objects)
+    ]
+    try:
+        sim = Simulator(sim_static_scene(layout), specs, scenario.gravity_m_s2, preset, seed=scenario.seed,
+                        skinning_cache_dir=skinning_cache_dir)
+        result = sim.run(scenario.num_frames, scenario.fps)
+    except SimulationError as e:
+        raise SequenceRejected("simulation_failed", str(e)) from None
+    for track in result.objects:
+        pts = track.cubature_positions_m
+        if not np.isfinite(pts).all():
+            raise SequenceRejected("nan", f"object {track.object_id} has non-finite positions")
+        lowest = float(pts[..., 2].min())
+        if lowest < -0.5 * float(track.contact_radius_m.max()) - 0.01:
+            raise SequenceRejected("tunnelling", f"object {track.object_id} reached z = {lowest:.3f} m below the ground")
+    return result
+
+
+def camera_matrices(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """(K (3, 3), world_to_camera (T, 4, 4)) of the scenario's camera path."""
+    h, w = scenario.image_size
+    K = geometry.intrinsics_from_fov(scenario.camera.fov_x_deg, h, w)
+    return K, path_from_spec(scenario.camera, scenario.num_frames, scenario.fps)
+
+
+@dataclass
+class _Labels:
+    """Per-Gaussian label values of the combined (scene + objects) Gaussian set."""
+
+    instance: np.ndarray  # (N,) uint16
+    material: np.ndarray  # (N,) uint8
+    semantic: np.ndarray  # (N,) uint16
+
+
+def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
+                    settings: RenderSettings) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """Every map of the contract for every frame: (maps, K float32, world_to_camera float32)."""
+    K, w2c = camera_matrices(scenario)
+    h, w = scenario.image_size
+    t_count, n_obj = scenario.num_frames, len(objects)
+    maps = {name: np.zeros(spec.expected_shape(t_count, h, w, n_obj), spec.dtype) for name, spec in schema.MAPS.items()}
+    scene_g = gaussians_from_scene(layout, spacing_m=settings.scene_spacing_m)
+    scene_mats = np.array([get_material(layout.floor_material).id] + [get_material(b.material).id for b in layout.boxes],
+                          np.uint8)
+    n_scene = len(scene_g)
+    sizes = [len(o.surface) for o in objects]
+    offsets = np.concatenate([[n_scene], n_scene + np.cumsum(sizes)])
+    labels = _Labels(
+        instance=np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.object_id, np.uint16) for o, s in zip(objects, sizes)]),
+        material=np.concatenate([scene_mats[scene_g.part_ids]] + [np.full(s, o.material_id, np.uint8) for o, s in zip(objects, sizes)]),
+        semantic=np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.semantic_id, np.uint16) for o, s in zip(objects, sizes)]),
+    )
+    tracks = {t.object_id: t for t in result.objects}
+    # Nearest cubature point of every surface Gaussian, in the rest frame (fixed for the sequence).
+    nearest = [cKDTree(tracks[o.object_id].points_rest_m).query(o.surface.means_m.astype(np.float64))[1] for o in objects]
+    scene_cov = Gaussians(means_m=scene_g.means_m, scales_m=scene_g.scales_m, rotations_wxyz=scene_g.rotations_wxyz,
+                          colors_rgb=scene_g.colors_rgb, opacities=scene_g.opacities).covariances()
+    local = [Gaussians(means_m=o.surface.means_m, scales_m=o.surface.scales_m, rotations_wxyz=o.surface.rotations_wxyz,
+                       colors_rgb=o.surface.colors_rgb, opacities=o.surface.opacities) for o in objects]
+    colors = np.concatenate([scene_g.colors_rgb] + [o.surface.colors_rgb for o in objects])
+    opac = np.concatenate([scene_g.opacities] + [o.surface.opacities for o in objects])
+    positions = np.zeros((t_count, len(labels.instance), 3))
+    positions[:, :n_scene] = scene_g.means_m
+    gravity = np.asarray(scenario.gravity_m_s2, np.float64)
+    rgb_r = RgbRasterizer(h, w, settings.device, settings.num_threads)
+    lab_r = LabelRasterizer(h, w, settings.device, settings.num_threads)
+    depth_all = np.zeros((t_count, h, w))
+    index_all = np.zeros((t_count, h, w), np.int64)
+    for t in range(t_count):  # loop over frames
+        covs = [scene_cov]
+        contact = np.zeros(len(labels.instance), bool)
+        stress = np.zeros(len(labels.instance))
+        grav = np.zeros((len(labels.instance), 3))
+        for k, o in enumerate(objects):  # loop over objects
+            tr = tracks[o.object_id]
+            x, F = tr.deform(o.surface.means_m, t)
+            sl = slice(offsets[k], offsets[k + 1])
+            positions[t, sl] = x
+            covs.append(F @ local[k].covariances() @ np.swapaxes(F, 1, 2))
+            contact[sl] = tr.contact_partner[t][nearest[k]] >= 0
+            stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]
+            grav[sl] = tr.mass_kg * gravity
+        cov = np.concatenate(covs)
+        g = Gaussians(means_m=positions[t], covariances_m2=0.5 * (cov + np.swapaxes(cov, 1, 2)), colors_rgb=colors,
+                      opacities=opac)
+        rgb, _ = rgb_r.render(g, K, w2c[t], background_rgb=BACKGROUND_RGB)
+        maps[schema.RGB][t] = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
+        index, depth = lab_r.render(g, K, w2c[t])
+        index_all[t], depth_all[t] = index, depth
+        maps[schema.DEPTH][t] = depth
+        maps[schema.INSTANCES][t] = gather_labels(index, labels.instance)
+        maps[schema.MATERIALS][t] = gather_labels(index, labels.material)
+        maps[schema.SEMANTIC_SEGMENTATION][t] = gather_labels(index, labels.semantic)
+        maps[schema.COLLISION][t] = gather_labels(index, contact, False)
+        maps[schema.STRESS][t] = gather_labels(index, stress.astype(np.float32))
+        maps[schema.GRAVITY][t] = gather_labels(index, geometry.rotate_vectors(w2c[t], grav).astype(np.float32))
+        if n_obj:
+            masks = lab_r.render_group_masks(g, K, w2c[t], labels.instance, [o.object_id for o in objects])
+            maps[schema.AMODAL_INSTANCES][t] = masks
+            for k, o in enumerate(objects):
+                maps[schema.AMODAL_MATERIALS][t, k][masks[k]] = o.material_id
+                maps[schema.AMODAL_SEMANTIC_SEGMENTATION][t, k][masks[k]] = o.semantic_id
+    for t in range(t_count - 1):
+        disp = positions[t + 1] - positions[t]
+        flow_cam = gather_labels(index_all[t], geometry.rotate_vectors(w2c[t], disp))
+        maps[schema.SCENE_FLOW][t] = flow_cam.astype(np.float32)
+        surface = depth_all[t] > 0
+        of = optical_flow_from_scene_flow(maps[schema.DEPTH][t].astype(np.float64), maps[schema.SCENE_FLOW][t].astype(np.float64),
+                                          K, w2c[t], w2c[t + 1])
+        of[~surface] = 0.0
+        maps[schema.OPTICAL_FLOW][t] = np.nan_to_num(of).astype(np.float32)
+    return maps, K.astype(np.float32), w2c.astype(np.float32)
+
+
+def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
+                      maps: dict[str, np.ndarray], world_to_camera: np.ndarray, wall_time_s: float) -> WorldState:
+    tracks = {t.object_id: t for t in result.objects}
+    frames = []
+    for t in range(scenario.num_frames):
+        pos, quat = geometry.camera_pose(world_to_camera[t].astype(np.float64))
+        objs = []
+        for k, o in enumerate(objects):
+            tr = tracks[o.object_id]
+            visible = int((maps[schema.INSTANCES][t] == o.object_id).sum())
+            amodal = int(maps[schema.AMODAL_INSTANCES][t, k].sum())
+            partners = sorted({int(p) for p in np.unique(tr.contact_partner[t]) if p >= 0})
+            objs.append(ObjectFrameState(
+                id=o.object_id, position=tuple(tr.com_m[t].tolist()),
+                orientation=tuple(float(v) for v in tr.orientation_wxyz[t]),
+                velocity=tuple(tr.velocity_m_s[t].tolist()), angular_velocity=tuple(tr.angular_velocity_rad_s[t].tolist()),
+                visible_pixels=visible, visible_fraction=min(1.0, visible / amodal) if amodal else 0.0,
+                in_view=amodal > 0, contacts=partners,
+            ))
+        frames.append(FrameState(t, t / scenario.fps, CameraPose(tuple(pos.tolist()), tuple(quat.tolist())), objs))
+    info = result.info.to_dict()
+    sim_info = SimulationInfo(
+        quality=info.pop("quality"), dt=info.pop("dt"), substeps=info.pop("substeps"),
+        newton_iterations=info.pop("newton_iterations"), wall_time_s=info.pop("wall_time_s"),
+        extra={**info, "pipeline_wall_time_s": wall_time_s},
+    )
+    return WorldState(
+        schema_version=schema.SCHEMA_VERSION, sequence_id=scenario.sequence_id, seed=scenario.seed,
+        split=scenario.split, fps=scenario.fps, num_frames=scenario.num_frames, image_size=scenario.image_size,
+        gravity=tuple(float(v) for v in scenario.gravity_m_s2),
+        scene=SceneInfo(name=layout.name, kind=layout.kind, extra={"camera": scenario.camera.kind}),
+        materials=material_id_table(), semantic_classes=semantic_class_table(),
+        objects=[
+            ObjectInfo(
+                id=o.object_id, name=p.asset, category=o.asset.category, material=p.material,
+                young_modulus=p.young_modulus_pa, poisson_ratio=p.poisson_ratio, density=p.density_kg_m3,
+                mass=tracks[o.object_id].mass_kg, volume=o.volume_m3, size=tuple(o.asset.size_m.tolist()),
+                num_handles=tracks[o.object_id].num_handles,
+                num_cubature_points=int(len(tracks[o.object_id].points_rest_m)),
+                extra={"motion": p.motion},
+            )
+            for o, p in zip(objects, scenario.objects)
+        ],
+        frames=frames,
+        collisions=[CollisionEvent(**_event_fields(e.to_dict())) for e in result.collisions],
+        simulation=sim_info,
+        extra={k: v for k, v in (("counterfactual_of", scenario.counterfactual_of), ("change", scenario.change)) if v},
+    )
+
+
+def _event_fields(d: dict) -> dict:
+    return {"frame": d["frame"], "objects": tuple(d["objects"]), "position": tuple(d["position"]),
+            "normal": tuple(d["normal"]), "impulse": d["impulse"], "peak_force": d["peak_force"]}
+
+
+def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: RenderSettings,
+                      skinning_cache_dir: str | None = None) -> tuple[SequenceArrays, dict[str, float]]:
+    """One sequence of the contract, plus wall times (s) of its stages. Raises SequenceRejected."""
+    t0 = time.perf_counter()
+    layout = scene_layout(scenario.scene)
+    objects = build_objects(scenario, settings)
+    t1 = time.perf_counter()
+    result = simulate(scenario, objects, layout, preset, skinning_cache_dir)
+    t2 = time.perf_counter()
+    maps, K, w2c = render_sequence(scenario, objects, layout, result, settings)
+    t3 = time.perf_counter()
+    visible = [int((maps[schema.INSTANCES][-1] == o.object_id).sum()) >= settings.min_visible_pixels for o in objects]
+    if sum(visible) < min(settings.min_visible_objects, len(objects)):
+        raise SequenceRejected("out_of_view", f"{sum(visible)} of {len(objects)} objects visible in the last frame "
+                                              f"(need {settings.min_visible_objects} with >= {settings.min_visible_pixels} px)")
+    for name, arr in maps.items():
+        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+            raise SequenceRejected("nan", f"map {name} has non-finite values")
+    ws = build_world_state(scenario, objects, layout, result, maps, w2c, time.perf_counter() - t0)
+    timings = {"prepare_s": t1 - t0, "simulate_s": t2 - t1, "render_s": t3 - t2}
+    return SequenceArrays(maps, K, w2c, ws), timings

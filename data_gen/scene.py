@@ -1,0 +1,294 @@
+"""Scenarios: what happens in one sequence, drawn from a config and a seed.
+
+A :class:`Scenario` is declarative and complete: static scene name, every
+object (asset, size, material parameters, pose, velocities), gravity, camera
+path parameters, frame count and image size. The simulator, the renderer
+and the shard writer all read the same scenario and never change it.
+Every random draw derives from the sequence seed (one ``np.random.Generator``
+per sequence; sub-streams per purpose), so a sequence is reproducible alone.
+
+Counterfactuals (:func:`counterfactual`) copy a scenario and change exactly
+one thing: gravity, one object's position, or one object's size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from data_gen.assets.library import get_object, list_objects
+from data_gen.assets.materials import sample_material
+from data_gen.assets.scenes import get_scene, list_scenes
+from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, sample_camera_spec
+from newtphys import schema
+from newtphys.geometry import quat_to_matrix
+
+MOTIONS = ("drop", "throw", "push")
+
+
+class ScenarioError(ValueError):
+    """A scenario config cannot produce a valid scenario (names the key and the value)."""
+
+
+@dataclass(frozen=True)
+class ObjectPlacement:
+    object_id: int
+    """1-based."""
+    asset: str
+    size_m: float
+    """Largest bounding-box extent after scaling, m."""
+    material: str
+    young_modulus_pa: float
+    poisson_ratio: float
+    density_kg_m3: float
+    position_m: tuple[float, float, float]
+    """World position of the object-frame origin (the asset's local origin) at t = 0."""
+    orientation_wxyz: tuple[float, float, float, float]
+    velocity_m_s: tuple[float, float, float]
+    angular_velocity_rad_s: tuple[float, float, float]
+    motion: str
+    color_seed: int
+
+
+@dataclass(frozen=True)
+class Scenario:
+    sequence_id: str
+    seed: int
+    split: str
+    scene: str
+    objects: tuple[ObjectPlacement, ...]
+    gravity_m_s2: tuple[float, float, float]
+    camera: CameraPathSpec
+    num_frames: int
+    fps: float
+    image_size: tuple[int, int]
+    counterfactual_of: str | None = None
+    change: str | None = None
+
+    @property
+    def gravity_magnitude(self) -> float:
+        return float(np.linalg.norm(self.gravity_m_s2))
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """Ranges a scenario is drawn from (conf/scenario/*.yaml). Ranges are closed [min, max]."""
+
+    name: str = "drop"
+    scenes: tuple[str, ...] = ("empty_floor",)
+    num_objects: tuple[int, int] = (1, 3)
+    objects: tuple[str, ...] | None = None
+    """Library names to draw from (None: the whole library)."""
+    size_m: tuple[float, float] = (0.1, 0.3)
+    motions: Mapping[str, float] = field(default_factory=lambda: {"drop": 1.0})
+    """Motion kind -> probability weight."""
+    drop_height_m: tuple[float, float] = (0.05, 0.5)
+    """Clearance of the object's lowest point above its support at t = 0."""
+    throw_speed_m_s: tuple[float, float] = (1.0, 3.0)
+    push_speed_m_s: tuple[float, float] = (0.5, 2.0)
+    spin_rad_s: tuple[float, float] = (0.0, 3.0)
+    random_orientation: bool = True
+    camera_kinds: tuple[str, ...] = CAMERA_KINDS
+    camera_distance_m: tuple[float, float] = (1.2, 2.0)
+    """Horizontal camera-target distance at t = 0."""
+    camera_height_m: tuple[float, float] = (0.5, 1.2)
+    fov_x_deg: tuple[float, float] = (45.0, 60.0)
+    max_placement_tries: int = 200
+
+    @staticmethod
+    def from_mapping(cfg: Mapping[str, Any]) -> ScenarioConfig:
+        known = {f.name for f in dataclasses.fields(ScenarioConfig)}
+        unknown = sorted(set(cfg) - known)
+        if unknown:
+            raise ScenarioError(f"scenario config: unknown keys {unknown}; known keys: {sorted(known)}")
+        kwargs = {k: (tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in cfg.items()}
+        if "motions" in kwargs:
+            kwargs["motions"] = dict(cfg["motions"])
+        out = ScenarioConfig(**kwargs)
+        out.check()
+        return out
+
+    def check(self) -> None:
+        for s in self.scenes:
+            if s not in list_scenes():
+                raise ScenarioError(f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scenes()}")
+        for o in self.objects or ():
+            if o not in list_objects():
+                raise ScenarioError(f"scenario '{self.name}': unknown object {o!r}; valid objects: {list_objects()}")
+        lo, hi = self.num_objects
+        if not 1 <= lo <= hi <= 10:
+            raise ScenarioError(f"scenario '{self.name}': num_objects must satisfy 1 <= min <= max <= 10, got {self.num_objects}")
+        bad = sorted(set(self.motions) - set(MOTIONS))
+        if bad or not self.motions or min(self.motions.values()) < 0 or sum(self.motions.values()) <= 0:
+            raise ScenarioError(f"scenario '{self.name}': motions must map {MOTIONS} to weights >= 0, got {dict(self.motions)}")
+        bad = sorted(set(self.camera_kinds) - set(CAMERA_KINDS))
+        if bad or not self.camera_kinds:
+            raise ScenarioError(f"scenario '{self.name}': unknown camera kinds {bad}; valid: {CAMERA_KINDS}")
+        for key in ("size_m", "drop_height_m", "throw_speed_m_s", "push_speed_m_s", "spin_rad_s",
+                    "camera_distance_m", "camera_height_m", "fov_x_deg"):
+            lo, hi = getattr(self, key)
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
+                raise ScenarioError(f"scenario '{self.name}': {key} must be a range 0 <= min <= max, got {(lo, hi)}")
+
+
+def gravity_for_split(split: str, mode: str, rng: np.random.Generator) -> tuple[float, float, float]:
+    """Earth: (0, 0, -9.81). OOD: magnitude uniform in OOD_GRAVITY_RANGE_M_S2, pointing down."""
+    if mode == "earth":
+        g = schema.EARTH_GRAVITY_M_S2
+    elif mode == "ood":
+        g = float(rng.uniform(*schema.OOD_GRAVITY_RANGE_M_S2))
+    else:
+        raise ScenarioError(f"gravity mode must be 'earth' or 'ood', got {mode!r} (split {split!r})")
+    return (0.0, 0.0, -g)
+
+
+def _random_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    q *= np.sign(q[0]) or 1.0
+    return tuple(float(v) for v in q)
+
+
+def _yaw_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
+    a = rng.uniform(0, 2 * np.pi)
+    return (float(np.cos(a / 2)), 0.0, 0.0, float(np.sin(a / 2)))
+
+
+def _uniform(rng: np.random.Generator, r: Sequence[float]) -> float:
+    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
+
+
+def sample_scenario(
+    cfg: ScenarioConfig,
+    sequence_id: str,
+    seed: int,
+    split: str,
+    gravity_mode: str,
+    num_frames: int,
+    fps: float,
+    image_size: tuple[int, int],
+) -> Scenario:
+    """Draw one scenario. Placement avoids initial overlap with bounding spheres; raises ScenarioError
+    when ``max_placement_tries`` cannot place every object (an impossible placement)."""
+    if not 1 <= num_frames <= schema.MAX_SEQUENCE_SECONDS * fps:
+        raise ScenarioError(
+            f"num_frames must be in [1, {int(schema.MAX_SEQUENCE_SECONDS * fps)}] "
+            f"({schema.MAX_SEQUENCE_SECONDS:g} s at {fps:g} FPS), got {num_frames}"
+        )
+    ss = np.random.SeedSequence(seed)
+    rng_scene, rng_obj, rng_cam, rng_g = (np.random.default_rng(s) for s in ss.spawn(4))
+    scene_name = cfg.scenes[int(rng_scene.integers(len(cfg.scenes)))]
+    scene = get_scene(scene_name)
+    pool = list(cfg.objects or list_objects())
+    n = int(rng_obj.integers(cfg.num_objects[0], cfg.num_objects[1] + 1))
+    motions = list(cfg.motions)
+    weights = np.array([cfg.motions[m] for m in motions], np.float64)
+    placed: list[tuple[np.ndarray, float]] = []  # (centre, bounding radius)
+    objects: list[ObjectPlacement] = []
+    for k in range(n):
+        asset_name = pool[int(rng_obj.integers(len(pool)))]
+        size = _uniform(rng_obj, cfg.size_m)
+        asset = get_object(asset_name, size_m=size)
+        material = asset.allowed_materials[int(rng_obj.integers(len(asset.allowed_materials)))]
+        E, nu, rho = sample_material(material, rng_obj)
+        motion = motions[int(rng_obj.choice(len(motions), p=weights / weights.sum()))]
+        orientation = _random_quat(rng_obj) if cfg.random_orientation and motion != "push" else _yaw_quat(rng_obj)
+        lo, hi = (np.asarray(b, np.float64) for b in asset.shape.bounds())
+        centre_local = 0.5 * (lo + hi)
+        radius = 0.5 * float(np.linalg.norm(hi - lo))
+        for _ in range(cfg.max_placement_tries):
+            region = scene.regions[int(rng_obj.integers(len(scene.regions)))]
+            p = region.sample(1, rng_obj)[0]
+            support_z = float(region.min_m[2])
+            clearance = 0.005 if motion == "push" else _uniform(rng_obj, cfg.drop_height_m)
+            p[2] = support_z + radius + clearance
+            ok = all(np.linalg.norm(p - c) > radius + r for c, r in placed)
+            ok = ok and float(scene.sdf(p[None])[0]) > radius
+            if ok:
+                break
+        else:
+            raise ScenarioError(
+                f"scenario '{cfg.name}', sequence {sequence_id}: cannot place object {k + 1} ({asset_name}, "
+                f"size {size:.3f} m) without overlap in scene '{scene_name}' after {cfg.max_placement_tries} tries; "
+                "lower num_objects or size_m"
+            )
+        placed.append((p, radius))
+        origin = p - quat_to_matrix(orientation) @ centre_local  # put the bounding-box centre at p
+        vel = np.zeros(3)
+        if motion == "throw":
+            to_centre = -p[:2] / (np.linalg.norm(p[:2]) + 1e-9)
+            speed = _uniform(rng_obj, cfg.throw_speed_m_s)
+            vel = np.array([*(0.8 * speed * to_centre), 0.6 * speed])
+        elif motion == "push":
+            ang = rng_obj.uniform(0, 2 * np.pi)
+            vel = _uniform(rng_obj, cfg.push_speed_m_s) * np.array([np.cos(ang), np.sin(ang), 0.0])
+        spin = rng_obj.normal(size=3)
+        spin *= _uniform(rng_obj, cfg.spin_rad_s) / (np.linalg.norm(spin) + 1e-12)
+        objects.append(ObjectPlacement(
+            object_id=k + 1, asset=asset_name, size_m=size, material=material, young_modulus_pa=float(E),
+            poisson_ratio=float(nu), density_kg_m3=float(rho), position_m=tuple(float(v) for v in origin),
+            orientation_wxyz=orientation, velocity_m_s=tuple(float(v) for v in vel),
+            angular_velocity_rad_s=tuple(float(v) for v in spin) if motion != "push" else (0.0, 0.0, 0.0),
+            motion=motion, color_seed=int(rng_obj.integers(2**31)),
+        ))
+    centres = np.array([c for c, _ in placed])
+    target = centres.mean(axis=0)
+    target[2] = max(0.5 * target[2], 0.05)
+    camera = sample_camera_spec(
+        cfg.camera_kinds[int(rng_cam.integers(len(cfg.camera_kinds)))],
+        target,
+        radius_m=_uniform(rng_cam, cfg.camera_distance_m),
+        height_m=_uniform(rng_cam, cfg.camera_height_m),
+        rng=rng_cam,
+        fov_x_deg=_uniform(rng_cam, cfg.fov_x_deg),
+    )
+    return Scenario(
+        sequence_id=sequence_id, seed=seed, split=split, scene=scene_name, objects=tuple(objects),
+        gravity_m_s2=gravity_for_split(split, gravity_mode, rng_g), camera=camera, num_frames=num_frames,
+        fps=float(fps), image_size=(int(image_size[0]), int(image_size[1])),
+    )
+
+
+COUNTERFACTUAL_CHANGES = ("gravity", "shift", "resize")
+
+
+def counterfactual(
+    scenario: Scenario, change: str, object_id: int = 1, amount: float | Sequence[float] | None = None
+) -> Scenario:
+    """A copy of ``scenario`` that differs in exactly one thing.
+
+    * ``gravity``: gravity magnitude scaled by ``amount`` (default 0.5: lower gravity);
+    * ``shift``: object ``object_id`` translated by ``amount`` (3-vector, m; default (0.1, 0, 0));
+    * ``resize``: object ``object_id`` scaled by ``amount`` (default 0.8) about its origin.
+    """
+    sid = f"{scenario.sequence_id}-cf-{change}"
+    if change == "gravity":
+        s = 0.5 if amount is None else float(amount)  # type: ignore[arg-type]
+        if not s > 0:
+            raise ScenarioError(f"counterfactual gravity scale must be > 0, got {s}")
+        g = tuple(float(v) * s for v in scenario.gravity_m_s2)
+        return dataclasses.replace(scenario, sequence_id=sid, gravity_m_s2=g, counterfactual_of=scenario.sequence_id,
+                                   change=change)
+    ids = [o.object_id for o in scenario.objects]
+    if object_id not in ids:
+        raise ScenarioError(f"counterfactual: no object {object_id} in {scenario.sequence_id} (ids {ids})")
+    objs = list(scenario.objects)
+    k = ids.index(object_id)
+    if change == "shift":
+        d = np.asarray((0.1, 0.0, 0.0) if amount is None else amount, np.float64)
+        if d.shape != (3,):
+            raise ScenarioError(f"counterfactual shift must be a 3-vector in m, got {amount!r}")
+        objs[k] = dataclasses.replace(objs[k], position_m=tuple(float(v) for v in np.asarray(objs[k].position_m) + d))
+    elif change == "resize":
+        s = 0.8 if amount is None else float(amount)  # type: ignore[arg-type]
+        if not s > 0:
+            raise ScenarioError(f"counterfactual resize factor must be > 0, got {s}")
+        objs[k] = dataclasses.replace(objs[k], size_m=objs[k].size_m * s)
+    else:
+        raise ScenarioError(f"unknown counterfactual change {change!r}; valid: {COUNTERFACTUAL_CHANGES}")
+    return dataclasses.replace(scenario, sequence_id=sid, objects=tuple(objs), counterfactual_of=scenario.sequence_id,
+                               change=change)
