@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 from scipy.spatial import cKDTree
 
 from data_gen.assets.gaussians_from_geometry import SurfaceGaussians, gaussians_from_object, gaussians_from_scene
@@ -46,10 +47,11 @@ from data_gen.scene import Scenario
 from data_gen.sim.material import Material
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.recording import SimulationResult
+from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_from_tmat, displacement_from_tmat, tmat_from_z
 from data_gen.sim.solver import SimulationError
 from data_gen.sim.static_scene import StaticBox
 from data_gen.sim.static_scene import StaticScene as SimStaticScene
-from data_gen.sim.world import SimObjectSpec, Simulator
+from data_gen.sim.world import SimObjectSpec, Simulator, torch_threads
 from newtphys import geometry, schema
 from newtphys.consistency import optical_flow_from_scene_flow
 from newtphys.shards import SequenceArrays
@@ -175,13 +177,34 @@ def camera_matrices(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
     return K, path_from_spec(scenario.camera, scenario.num_frames, scenario.fps)
 
 
-@dataclass
-class _Labels:
-    """Per-Gaussian label values of the combined (scene + objects) Gaussian set."""
+class SkinnedSurface:
+    """An object's surface Gaussians driven by its simulated handles.
 
-    instance: np.ndarray  # (N,) uint16
-    material: np.ndarray  # (N,) uint8
-    semantic: np.ndarray  # (N,) uint16
+    Skinning weights, the affine basis b and the deformation basis C of every
+    surface Gaussian are evaluated once; each frame then costs two small
+    matrix products (x = x0 + Tm b, F = I + Tm C). A deformed splat's
+    covariance (F R S)(F R S)^T is stored back as rotation + scales through the
+    SVD of F R S, so it stays a valid Gaussian by construction.
+    """
+
+    def __init__(self, surface: SurfaceGaussians, track) -> None:
+        x0 = torch.as_tensor(surface.means_m, dtype=torch.float64)
+        w, g = track.basis.evaluate(x0)
+        self.x0 = x0
+        self.b = affine_basis(x0, w.to(torch.float64))
+        self.c = deformation_basis(x0, w.to(torch.float64), g.to(torch.float64))
+        rot = torch.as_tensor(geometry.quat_to_matrix(surface.rotations_wxyz.astype(np.float64)))
+        self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64)[:, None, :]
+        self.track = track
+
+    def at(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World centres (n, 3) m, scales (n, 3) m and rotations (n, 4) wxyz at ``frame``."""
+        tm = tmat_from_z(torch.as_tensor(self.track.handle_transforms[frame], dtype=torch.float64))
+        x = self.x0 + displacement_from_tmat(self.b, tm)
+        m = deformation_from_tmat(self.c, tm) @ self.rs
+        u, sv, _ = torch.linalg.svd(m)
+        u[:, :, 2] *= torch.sign(torch.linalg.det(u))[:, None]  # proper rotation; cov = U S^2 U^T unchanged
+        return x.numpy(), sv.clamp_min(1e-9).numpy(), geometry.matrix_to_quat(u.numpy())
 
 
 def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
@@ -196,70 +219,65 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
                           np.uint8)
     n_scene = len(scene_g)
     sizes = [len(o.surface) for o in objects]
-    offsets = np.concatenate([[n_scene], n_scene + np.cumsum(sizes)])
-    labels = _Labels(
-        instance=np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.object_id, np.uint16) for o, s in zip(objects, sizes)]),
-        material=np.concatenate([scene_mats[scene_g.part_ids]] + [np.full(s, o.material_id, np.uint8) for o, s in zip(objects, sizes)]),
-        semantic=np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.semantic_id, np.uint16) for o, s in zip(objects, sizes)]),
-    )
+    offsets = np.concatenate([[n_scene], n_scene + np.cumsum(sizes)]).astype(int)
+    instance = np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.object_id, np.uint16) for o, s in zip(objects, sizes)])
+    material = np.concatenate([scene_mats[scene_g.part_ids]] + [np.full(s, o.material_id, np.uint8) for o, s in zip(objects, sizes)])
+    semantic = np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.semantic_id, np.uint16) for o, s in zip(objects, sizes)])
     tracks = {t.object_id: t for t in result.objects}
+    skinned = [SkinnedSurface(o.surface, tracks[o.object_id]) for o in objects]
     # Nearest cubature point of every surface Gaussian, in the rest frame (fixed for the sequence).
     nearest = [cKDTree(tracks[o.object_id].points_rest_m).query(o.surface.means_m.astype(np.float64))[1] for o in objects]
-    scene_cov = Gaussians(means_m=scene_g.means_m, scales_m=scene_g.scales_m, rotations_wxyz=scene_g.rotations_wxyz,
-                          colors_rgb=scene_g.colors_rgb, opacities=scene_g.opacities).covariances()
-    local = [Gaussians(means_m=o.surface.means_m, scales_m=o.surface.scales_m, rotations_wxyz=o.surface.rotations_wxyz,
-                       colors_rgb=o.surface.colors_rgb, opacities=o.surface.opacities) for o in objects]
+    gravity = np.asarray(scenario.gravity_m_s2, np.float64)
+    mass_of_id = np.zeros(max([o.object_id for o in objects], default=0) + 1)
+    for o in objects:
+        mass_of_id[o.object_id] = tracks[o.object_id].mass_kg
     colors = np.concatenate([scene_g.colors_rgb] + [o.surface.colors_rgb for o in objects])
     opac = np.concatenate([scene_g.opacities] + [o.surface.opacities for o in objects])
-    positions = np.zeros((t_count, len(labels.instance), 3))
+    n_all = len(instance)
+    positions = np.zeros((t_count, n_all, 3))
     positions[:, :n_scene] = scene_g.means_m
-    gravity = np.asarray(scenario.gravity_m_s2, np.float64)
+    scales = np.concatenate([scene_g.scales_m, np.zeros((n_all - n_scene, 3), np.float32)])
+    rotations = np.concatenate([scene_g.rotations_wxyz, np.zeros((n_all - n_scene, 4), np.float32)])
     rgb_r = RgbRasterizer(h, w, settings.device, settings.num_threads)
     lab_r = LabelRasterizer(h, w, settings.device, settings.num_threads)
-    depth_all = np.zeros((t_count, h, w))
     index_all = np.zeros((t_count, h, w), np.int64)
+    object_ids = [o.object_id for o in objects]
     for t in range(t_count):  # loop over frames
-        covs = [scene_cov]
-        contact = np.zeros(len(labels.instance), bool)
-        stress = np.zeros(len(labels.instance))
-        grav = np.zeros((len(labels.instance), 3))
+        contact = np.zeros(n_all, bool)
+        stress = np.zeros(n_all, np.float32)
         for k, o in enumerate(objects):  # loop over objects
-            tr = tracks[o.object_id]
-            x, F = tr.deform(o.surface.means_m, t)
             sl = slice(offsets[k], offsets[k + 1])
-            positions[t, sl] = x
-            covs.append(F @ local[k].covariances() @ np.swapaxes(F, 1, 2))
+            positions[t, sl], scales[sl], rotations[sl] = skinned[k].at(t)
+            tr = tracks[o.object_id]
             contact[sl] = tr.contact_partner[t][nearest[k]] >= 0
             stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]
-            grav[sl] = tr.mass_kg * gravity
-        cov = np.concatenate(covs)
-        g = Gaussians(means_m=positions[t], covariances_m2=0.5 * (cov + np.swapaxes(cov, 1, 2)), colors_rgb=colors,
+        g = Gaussians(means_m=positions[t], scales_m=scales, rotations_wxyz=rotations, colors_rgb=colors,
                       opacities=opac)
         rgb, _ = rgb_r.render(g, K, w2c[t], background_rgb=BACKGROUND_RGB)
         maps[schema.RGB][t] = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
         index, depth = lab_r.render(g, K, w2c[t])
-        index_all[t], depth_all[t] = index, depth
+        index_all[t] = index
         maps[schema.DEPTH][t] = depth
-        maps[schema.INSTANCES][t] = gather_labels(index, labels.instance)
-        maps[schema.MATERIALS][t] = gather_labels(index, labels.material)
-        maps[schema.SEMANTIC_SEGMENTATION][t] = gather_labels(index, labels.semantic)
+        ids = gather_labels(index, instance)
+        maps[schema.INSTANCES][t] = ids
+        maps[schema.MATERIALS][t] = gather_labels(index, material)
+        maps[schema.SEMANTIC_SEGMENTATION][t] = gather_labels(index, semantic)
         maps[schema.COLLISION][t] = gather_labels(index, contact, False)
-        maps[schema.STRESS][t] = gather_labels(index, stress.astype(np.float32))
-        maps[schema.GRAVITY][t] = gather_labels(index, geometry.rotate_vectors(w2c[t], grav).astype(np.float32))
+        maps[schema.STRESS][t] = gather_labels(index, stress)
+        weight = mass_of_id[ids.astype(np.int64)][..., None] * gravity  # (H, W, 3) N, world frame
+        maps[schema.GRAVITY][t] = geometry.rotate_vectors(w2c[t], weight).astype(np.float32)
         if n_obj:
-            masks = lab_r.render_group_masks(g, K, w2c[t], labels.instance, [o.object_id for o in objects])
+            masks = lab_r.render_group_masks(g, K, w2c[t], instance, object_ids)
             maps[schema.AMODAL_INSTANCES][t] = masks
             for k, o in enumerate(objects):
                 maps[schema.AMODAL_MATERIALS][t, k][masks[k]] = o.material_id
                 maps[schema.AMODAL_SEMANTIC_SEGMENTATION][t, k][masks[k]] = o.semantic_id
     for t in range(t_count - 1):
-        disp = positions[t + 1] - positions[t]
-        flow_cam = gather_labels(index_all[t], geometry.rotate_vectors(w2c[t], disp))
-        maps[schema.SCENE_FLOW][t] = flow_cam.astype(np.float32)
-        surface = depth_all[t] > 0
-        of = optical_flow_from_scene_flow(maps[schema.DEPTH][t].astype(np.float64), maps[schema.SCENE_FLOW][t].astype(np.float64),
-                                          K, w2c[t], w2c[t + 1])
-        of[~surface] = 0.0
+        disp_world = gather_labels(index_all[t], positions[t + 1] - positions[t])  # (H, W, 3) m
+        maps[schema.SCENE_FLOW][t] = geometry.rotate_vectors(w2c[t], disp_world).astype(np.float32)
+        of = optical_flow_from_scene_flow(maps[schema.DEPTH][t].astype(np.float64),
+                                          maps[schema.SCENE_FLOW][t].astype(np.float64), K, w2c[t], w2c[t + 1])
+        of[maps[schema.DEPTH][t] <= 0] = 0.0
         maps[schema.OPTICAL_FLOW][t] = np.nan_to_num(of).astype(np.float32)
     return maps, K.astype(np.float32), w2c.astype(np.float32)
 
@@ -328,7 +346,8 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
     t1 = time.perf_counter()
     result = simulate(scenario, objects, layout, preset, skinning_cache_dir)
     t2 = time.perf_counter()
-    maps, K, w2c = render_sequence(scenario, objects, layout, result, settings)
+    with torch_threads(1):  # the per-frame products are small: one thread beats a contended pool
+        maps, K, w2c = render_sequence(scenario, objects, layout, result, settings)
     t3 = time.perf_counter()
     visible = [int((maps[schema.INSTANCES][-1] == o.object_id).sum()) >= settings.min_visible_pixels for o in objects]
     if sum(visible) < min(settings.min_visible_objects, len(objects)):
