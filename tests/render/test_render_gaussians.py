@@ -1,0 +1,85 @@
+"""Gaussians container: validation, covariances, deformation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from data_gen.render.gaussians import Gaussians
+
+
+def _one(**overrides: object) -> Gaussians:
+    fields: dict[str, object] = dict(
+        means_m=[[0.0, 0.0, 2.0]], scales_m=[[0.1, 0.2, 0.3]], colors_rgb=[[1.0, 0.5, 0.0]], opacities=[0.8]
+    )
+    fields.update(overrides)
+    return Gaussians(**fields)  # type: ignore[arg-type]
+
+
+def test_covariance_from_scales_and_rotation() -> None:
+    # 90 degrees about z maps the local x axis to world y: variances (0.01, 0.04, 0.09) -> (0.04, 0.01, 0.09).
+    h = np.sqrt(0.5)
+    g = _one(rotations_wxyz=[[h, 0.0, 0.0, h]])
+    np.testing.assert_allclose(g.covariances()[0], np.diag([0.04, 0.01, 0.09]), atol=1e-7)
+    # identity rotation when omitted, quaternions get normalised
+    np.testing.assert_allclose(_one().covariances()[0], np.diag([0.01, 0.04, 0.09]), atol=1e-8)
+    g2 = _one(rotations_wxyz=[[2.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(g2.rotations_wxyz, [[1.0, 0.0, 0.0, 0.0]])
+
+
+def test_deformation_gradient_maps_covariance() -> None:
+    g = _one(scales_m=[[0.1, 0.1, 0.1]])
+    f = np.array([[[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]])
+    d = g.deformed(f)
+    np.testing.assert_allclose(d.covariances()[0], np.diag([0.04, 0.01, 0.01]), atol=1e-8)
+    # shear: F = I + e_x e_y^T -> Sigma = s^2 F F^T = s^2 [[2,1,0],[1,1,0],[0,0,1]]
+    shear = np.eye(3)[None].copy()
+    shear[0, 0, 1] = 1.0
+    np.testing.assert_allclose(
+        g.deformed(shear).covariances()[0], 0.01 * np.array([[2, 1, 0], [1, 1, 0], [0, 0, 1.0]]), atol=1e-8
+    )
+    moved = g.deformed(f, means_m=[[1.0, 2.0, 3.0]])
+    np.testing.assert_array_equal(moved.means_m, [[1.0, 2.0, 3.0]])
+    np.testing.assert_array_equal(moved.colors_rgb, g.colors_rgb)
+
+
+def test_subset_keeps_rows() -> None:
+    rng = np.random.default_rng(3)
+    g = Gaussians(
+        means_m=rng.normal(size=(5, 3)),
+        scales_m=rng.uniform(0.1, 1, (5, 3)),
+        colors_rgb=rng.uniform(0, 1, (5, 3)),
+        opacities=rng.uniform(0, 1, 5),
+    )
+    s = g.subset(np.array([True, False, True, False, False]))
+    assert len(s) == 2
+    np.testing.assert_array_equal(s.means_m, g.means_m[[0, 2]])
+    np.testing.assert_allclose(s.covariances(), g.covariances()[[0, 2]])
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (dict(means_m=[[0.0, np.nan, 2.0]]), r"means_m\[0\] is not finite"),
+        (dict(opacities=[1.5]), r"opacities\[0\] = 1.5 is outside the allowed range \[0.0, 1.0\]"),
+        (dict(colors_rgb=[[1.0, -0.1, 0.0]]), r"colors_rgb\[0\].*outside the allowed range"),
+        (dict(scales_m=[[0.1, -0.2, 0.3]]), r"scales_m\[0\].*outside the allowed range"),
+        (dict(means_m=[[0.0, 0.0]]), r"means_m must have shape \('N', 3\), got \(1, 2\)"),
+        (dict(opacities=[0.5, 0.5]), r"opacities has 2 rows but means_m has 1"),
+        (dict(rotations_wxyz=[[0.0, 0.0, 0.0, 0.0]]), r"rotations_wxyz\[0\].*zero norm"),
+        (dict(covariances_m2=np.eye(3)[None]), r"exactly one of scales_m"),
+        (
+            dict(scales_m=None, covariances_m2=[np.diag([1.0, -1.0, 1.0])]),
+            r"covariances_m2\[0\] is not positive",
+        ),
+        (dict(scales_m=None, covariances_m2=[[[1.0, 0.5, 0], [0, 1, 0], [0, 0, 1]]]), r"not symmetric"),
+    ],
+)
+def test_bad_input_names_field_and_value(overrides: dict[str, object], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        _one(**overrides)
+
+
+def test_bad_deformation_shape() -> None:
+    with pytest.raises(ValueError, match=r"deformation_gradients must have shape \(1, 3, 3\), got \(3, 3\)"):
+        _one().deformed(np.eye(3))
