@@ -7,7 +7,11 @@ Each row is timed against a baseline measured in the same run:
   (time and the binarised coverage of random surface points);
 * splat .ply write/read vs a bare ``ndarray.tofile`` / ``np.fromfile`` of the same bytes;
 * meshing: marching tetrahedra per library object (no baseline library here: the
-  ratio is against the SDF grid evaluation alone).
+  ratio is against the SDF grid evaluation alone); hollow objects mesh their outer
+  surface and their cavity;
+* per-sequence preparation (mesh + volume) of 10 sequences x 5 objects at random
+  sizes: reusing the canonical mesh scaled by s (``data_gen.assets.meshing``, cold
+  and warm cache) vs re-meshing every scaled object (the previous behaviour).
 
 Usage: python bench/bench_assets.py   (writes bench/results/assets.json)
 """
@@ -26,8 +30,9 @@ from scipy.spatial import cKDTree
 
 from data_gen.assets.gaussians_from_geometry import SurfaceGaussians, gaussians_from_mesh
 from data_gen.assets.library import get_object, list_objects
+from data_gen.assets.meshing import clear_mesh_cache, solid_volume_m3, surface_mesh
 from data_gen.assets.ply_io import encode_gaussians, points_inside_mesh, read_splat_ply, write_splat_ply
-from data_gen.assets.shapes import mesh_sdf
+from data_gen.assets.shapes import Scaled, Shape, Shell, mesh_sdf
 from newtphys.geometry import quat_to_matrix
 
 RESULTS = Path(__file__).parent / "results" / "assets.json"
@@ -51,12 +56,27 @@ def coverage(g: SurfaceGaussians, queries: np.ndarray, k: int = 16) -> float:
     return float((g.opacities[idx] * np.exp(-q / 2) >= 0.5).any(axis=1).mean())
 
 
+def _solid_parts(shape: Shape) -> list[Shape]:
+    """The smooth solids meshed for a shape: itself, or a shell's outer surface and its cavity."""
+    if isinstance(shape, Scaled):
+        return [Scaled(p, shape.scale) for p in _solid_parts(shape.child)]
+    if isinstance(shape, Shell):
+        return [shape.outer, shape.cavity()]
+    return [shape]
+
+
+def remesh_prepare(shape: Shape, spacing_m: float) -> tuple[trimesh.Trimesh, float]:
+    """Baseline: mesh every solid of the (scaled) shape from scratch; (visible mesh, material volume m^3)."""
+    meshes = [mesh_sdf(p, spacing_m=spacing_m) for p in _solid_parts(shape)]
+    return meshes[0], float(meshes[0].volume - sum(m.volume for m in meshes[1:]))
+
+
 def bench_meshing() -> dict:
     rows = []
     for name in list_objects():
         a = get_object(name)
         h = a.mesh_spacing_m()
-        t_mesh, mesh = timed(lambda a=a, h=h: mesh_sdf(a.shape, spacing_m=h), repeat=1)
+        t_mesh, mesh = timed(lambda a=a, h=h: remesh_prepare(a.shape, h)[0], repeat=1)
         lo, hi = a.shape.bounds()
         n = int(np.prod(np.ceil((hi - lo + 4 * h) / h) + 1))
         pts = np.random.default_rng(0).uniform(lo, hi, (n, 3))
@@ -74,6 +94,44 @@ def bench_meshing() -> dict:
         "rows": rows,
         "total_mesh_s": sum(r["mesh_s"] for r in rows),
         "total_sdf_grid_s": sum(r["sdf_grid_s"] for r in rows),
+    }
+
+
+def bench_scaled_meshing(sequences: int = 10, objects: int = 5, size_m=(0.1, 0.3), seed: int = 0) -> dict:
+    """Mesh + volume of every object of ``sequences`` x ``objects`` random (name, size) draws."""
+    rng = np.random.default_rng(seed)
+    names = list_objects()
+    draws = [
+        (names[int(rng.integers(len(names)))], float(rng.uniform(*size_m)))
+        for _ in range(sequences * objects)
+    ]
+    assets = [get_object(n, size_m=s) for n, s in draws]
+
+    def reuse() -> list[float]:
+        return [
+            solid_volume_m3(a.shape, a.mesh_spacing_m())
+            + 0 * len(surface_mesh(a.shape, a.mesh_spacing_m()).faces)
+            for a in assets
+        ]
+
+    def remesh() -> list[float]:
+        return [remesh_prepare(a.shape, a.mesh_spacing_m())[1] for a in assets]
+
+    clear_mesh_cache()
+    t_cold, v_reuse = timed(reuse, repeat=1)
+    t_warm, _ = timed(reuse, repeat=1)
+    t_remesh, v_remesh = timed(remesh, repeat=1)
+    rel = np.abs(np.asarray(v_reuse) / np.asarray(v_remesh) - 1.0)
+    return {
+        "sequences": sequences,
+        "objects_per_sequence": objects,
+        "distinct_objects": len({n for n, _ in draws}),
+        "remesh_s": t_remesh,
+        "reuse_cold_s": t_cold,
+        "reuse_warm_s": t_warm,
+        "speedup_cold": t_remesh / t_cold,
+        "speedup_warm": t_remesh / max(t_warm, 1e-9),
+        "volume_max_rel_diff": float(rel.max()),
     }
 
 
@@ -196,6 +254,7 @@ def plot_library(path: Path) -> None:
 def main() -> None:
     results = {
         "meshing": bench_meshing(),
+        "scaled_meshing": bench_scaled_meshing(),
         "inside": bench_inside(),
         "gaussians": bench_gaussians(),
         "ply": bench_ply(),
@@ -210,6 +269,13 @@ def main() -> None:
     )
     slow = sorted(m["rows"], key=lambda r: -r["mesh_s"])[:5]
     print("  slowest: " + ", ".join(f"{r['object']} {r['mesh_s']:.2f} s / {r['faces']} faces" for r in slow))
+    sm = results["scaled_meshing"]
+    print(
+        f"per-sequence mesh + volume, {sm['sequences']} sequences x {sm['objects_per_sequence']} objects at random "
+        f"sizes ({sm['distinct_objects']} distinct objects): re-mesh {sm['remesh_s']:.2f} s, reuse canonical "
+        f"mesh x s: cold cache {sm['reuse_cold_s']:.2f} s ({sm['speedup_cold']:.1f}x), warm {sm['reuse_warm_s']:.4f} s "
+        f"({sm['speedup_warm']:.0f}x); max volume difference {sm['volume_max_rel_diff']:.1e}"
+    )
     i = results["inside"]
     print(
         f"inside test ({i['points']} points, {i['faces']} faces): warp winding {i['warp_winding_s']:.3f} s, "

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from data_gen.assets.meshing import enable_disk_cache
 from data_gen.pipeline import RenderSettings, SequenceRejected, generate_sequence
 from data_gen.scene import ScenarioConfig, ScenarioError, sample_scenario
 from data_gen.sim.presets import QualityPreset
@@ -154,8 +155,14 @@ def _restore_index_entry(split_dir: Path, path: Path) -> None:
         log.info("restored the index entry of %s", path)
 
 
+def default_cache_root() -> Path:
+    """``$NEWTPHYS_CACHE_DIR`` or ``~/.cache/newtphys`` (skinning bases and meshes live below it)."""
+    return Path(os.environ.get("NEWTPHYS_CACHE_DIR") or Path.home() / ".cache" / "newtphys")
+
+
 def run_generation(cfg: GenerationConfig) -> GenerationReport:
     split_dir = cfg.out_dir / cfg.split
+    enable_disk_cache(default_cache_root() / "meshes")  # meshes are shared by parallel jobs and later runs
     report = GenerationReport()
     shard_ids = list(cfg.shard_range())
     todo = []

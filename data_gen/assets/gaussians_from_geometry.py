@@ -276,7 +276,18 @@ def gaussians_from_object(
     count: int | None = None,
     opacity: float = DEFAULT_OPACITY,
 ) -> SurfaceGaussians:
-    """Surface Gaussians of a library object in its local frame; colours from its textures, part ids from its SDF."""
+    """Surface Gaussians of an object in its local frame; colours from its textures, part ids from its SDF.
+
+    Only the visible surface is sampled (a hollow object's inner wall is never rendered).
+    Captured splat objects (``asset.splats``) return their own splats: ``spacing_m`` and
+    ``count`` do not apply to them and ``rng`` is not drawn from.
+    """
+    if asset.splats is not None:
+        if opacity != DEFAULT_OPACITY:
+            raise ValueError(
+                f"opacity cannot be set for captured splats (got {opacity}); they keep their own"
+            )
+        return asset.splats
     mesh = asset.to_mesh()
     if spacing_m is None and count is None:
         spacing_m = asset.nominal_size_m / 60.0
@@ -296,7 +307,7 @@ def gaussians_from_object(
         spacing_m=spacing_m,
         count=count,
         color_fn=colors,
-        normal_fn=normals,
+        normal_fn=None if asset.normals_from_mesh else normals,
         part_ids_fn=parts,
         opacity=opacity,
     )
@@ -423,7 +434,13 @@ def box_gaussians(
 def gaussians_from_scene(
     scene: StaticScene, spacing_m: float = 0.02, opacity: float = DEFAULT_OPACITY
 ) -> SurfaceGaussians:
-    """Floor (part 0) and every box k (part k + 1) of ``scene`` as Gaussians, world frame."""
+    """Floor (part 0) and every box k (part k + 1) of ``scene`` as Gaussians, world frame.
+
+    A captured scene (``scene.splats`` set) returns the file's splats (all part 0, the floor's material);
+    ``spacing_m`` and ``opacity`` do not apply to it.
+    """
+    if scene.splats is not None:
+        return scene.splats
     parts = [floor_gaussians(scene, spacing_m, opacity)]
     parts += [box_gaussians(b, spacing_m, k + 1, opacity) for k, b in enumerate(scene.boxes)]
     return concatenate(parts)

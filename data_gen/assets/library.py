@@ -9,19 +9,30 @@ origin), and one procedural texture per part id.
 so that its largest extent is ``size_m``; an unknown name lists the valid ones.
 The simulator takes ``interior_points`` + ``volume_m3`` + a sampled material;
 the renderer takes surface Gaussians made from ``to_mesh`` and ``colors_at``.
+
+Hollow objects (bottle, can, jar, cardboard box, bag, balls, rubber duck,
+traffic cone) are closed ``Shell``s with a per-object wall thickness:
+``volume_m3`` and ``interior_points`` describe the wall material only, while
+``to_mesh`` (what is rendered) is the outer surface only.
+
+Besides library names, ``get_object`` takes user assets (see ``data_gen.assets.imported``):
+``"file:/path/mesh.obj?material=rubber&up=y&scale=0.01"`` (OBJ/PLY/GLB/STL/OFF
+mesh) and ``"ply:/path/object.ply?up=y&scale=1.0"`` (a 3DGS splat object).
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from data_gen.assets.materials import RGB, ProceduralTexture, get_material, sample_palette_color
+from data_gen.assets.meshing import solid_volume_m3, surface_mesh
 from data_gen.assets.shapes import (
     Box,
     Capsule,
@@ -34,13 +45,17 @@ from data_gen.assets.shapes import (
     RoundedBox,
     Scaled,
     Shape,
+    Shell,
     Sphere,
     Torus,
     Union,
     axis_angle_wxyz,
-    mesh_sdf,
     place,
 )
+
+if TYPE_CHECKING:  # runtime imports would be circular (these modules import ObjectAsset)
+    from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
+    from data_gen.assets.mesh_shape import MeshColors
 
 CATEGORIES: tuple[str, ...] = (
     "ball",
@@ -59,6 +74,7 @@ CATEGORIES: tuple[str, ...] = (
     "stationery",
     "bag",
     "tool",
+    "imported",  # meshes and splats brought in by users (appended last: earlier ids never change)
 )
 MIN_SIZE_M, MAX_SIZE_M = 0.005, 5.0
 
@@ -85,7 +101,13 @@ class ObjectAsset:
     default_material: str
     allowed_materials: tuple[str, ...]
     textures: tuple[ProceduralTexture, ...]
-    min_feature_m: float  # thinnest wall or part, sets the default meshing resolution
+    min_feature_m: float  # thinnest part, sets the default meshing resolution (shell walls excluded)
+    mesh_colors: MeshColors | None = field(default=None, compare=False)
+    """Colours from an imported mesh's visuals (replace the textures when set)."""
+    splats: SurfaceGaussians | None = field(default=None, compare=False)
+    """Captured splats (local frame, m) rendered instead of sampled surface Gaussians when set."""
+    normals_from_mesh: bool = False
+    """Surface Gaussians take the mesh's normals instead of the SDF gradient (imported meshes)."""
 
     def __post_init__(self) -> None:
         semantic_id(self.category)
@@ -127,16 +149,33 @@ class ObjectAsset:
             )
         s = float(size_m) / self.nominal_size_m
         textures = tuple(replace(t, period_m=t.period_m * s) for t in self.textures)
+        # one Scaled over the canonical shape, so every size reuses the canonical mesh (meshing.py)
+        if isinstance(self.shape, Scaled):
+            shape = Scaled(self.shape.child, self.shape.scale * s)
+        else:
+            shape = Scaled(self.shape, s)
         return replace(
-            self, shape=Scaled(self.shape, s), textures=textures, min_feature_m=self.min_feature_m * s
+            self,
+            shape=shape,
+            textures=textures,
+            min_feature_m=self.min_feature_m * s,
+            mesh_colors=None if self.mesh_colors is None else self.mesh_colors.scaled(s),
+            splats=None if self.splats is None else _scaled_splats(self.splats, s),
         )
 
     def with_material_color(self, material: str, rng: np.random.Generator) -> ObjectAsset:
-        """Recolour part 0's base colour from ``material``'s palette (other parts unchanged)."""
+        """Recolour part 0's base colour from ``material``'s palette (other parts unchanged).
+
+        Imported assets with their own colours (mesh colours or splats) keep them; the
+        generator still advances by the same draws so downstream draws do not depend on it.
+        """
         if material not in self.allowed_materials:
             raise ValueError(
                 f"object {self.name!r}: material {material!r} not in allowed {self.allowed_materials}"
             )
+        if self.mesh_colors is not None or self.splats is not None:
+            sample_palette_color(material, rng)
+            return self
         t0 = self.textures[0]
         colors = (sample_palette_color(material, rng),) + tuple(t0.colors[1:])
         return replace(self, textures=(replace(t0, colors=colors),) + self.textures[1:])
@@ -147,16 +186,25 @@ class ObjectAsset:
         return float(np.clip(self.min_feature_m / 4.0, longest / 200.0, longest / 64.0))
 
     def to_mesh(self, spacing_m: float | None = None) -> trimesh.Trimesh:
-        """Watertight surface mesh (a fresh copy), m."""
-        return _cached_mesh(self.shape, spacing_m or self.mesh_spacing_m()).copy()
+        """The visible surface (a fresh copy), m: watertight for library objects; the outer wall only for
+        shells; an imported mesh as loaded (possibly open)."""
+        return surface_mesh(self.shape, spacing_m or self.mesh_spacing_m()).copy()
 
     def volume_m3(self) -> float:
-        """Volume of the default mesh, m^3."""
-        return float(_cached_mesh(self.shape, self.mesh_spacing_m()).volume)
+        """Volume of the material, m^3 (the wall only for hollow objects; mass = density x this)."""
+        return solid_volume_m3(self.shape, self.mesh_spacing_m())
+
+    @property
+    def is_hollow(self) -> bool:
+        """True for closed shells (the shape, maybe scaled, is a ``Shell``)."""
+        inner = self.shape.child if isinstance(self.shape, Scaled) else self.shape
+        return isinstance(inner, Shell)
 
     def colors_at(self, points_m: ArrayLike, part_ids: ArrayLike | None = None) -> NDArray[np.float64]:
         """RGB (n, 3) in [0, 1] at local surface points (n, 3), m; part ids from the SDF when not given."""
         p = np.asarray(points_m, np.float64).reshape(-1, 3)
+        if self.mesh_colors is not None:
+            return self.mesh_colors.colors_at(p)
         parts = self.shape.sdf_and_part(p)[1] if part_ids is None else np.asarray(part_ids)
         out = np.zeros((len(p), 3))
         for k, tex in enumerate(self.textures):  # loop over parts, vectorised over points
@@ -186,9 +234,16 @@ class ObjectAsset:
         return grid[self.shape.sdf(grid) < 0.0]
 
 
-@functools.lru_cache(maxsize=32)
-def _cached_mesh(shape: Shape, spacing_m: float) -> trimesh.Trimesh:
-    return mesh_sdf(shape, spacing_m=spacing_m)
+def _scaled_splats(splats: SurfaceGaussians, scale: float) -> SurfaceGaussians:
+    """Splats scaled uniformly about the origin (means and std-devs x scale)."""
+    return type(splats)(
+        splats.means_m * scale,
+        splats.scales_m * scale,
+        splats.rotations_wxyz,
+        splats.colors_rgb,
+        splats.opacities,
+        splats.part_ids,
+    )
 
 
 # --------------------------------------------------------------------------- #
@@ -234,6 +289,7 @@ class _Spec:
     textures: tuple[ProceduralTexture, ...]
     min_feature_m: float
     build: Callable[[], Shape]
+    wall_m: float | None = None  # closed hollow object: wall thickness, m (None = solid)
 
 
 WHITE, BLACK, RED = (0.95, 0.95, 0.95), (0.08, 0.08, 0.08), (0.85, 0.12, 0.10)
@@ -493,6 +549,7 @@ _SPECS: dict[str, _Spec] = {
         (_tex("checker", (WHITE, BLACK), 0.07),),
         0.2,
         _ball,
+        wall_m=0.003,
     ),
     "tennis_ball": _Spec(
         "ball",
@@ -501,6 +558,7 @@ _SPECS: dict[str, _Spec] = {
         (_tex("noise", ((0.80, 0.90, 0.20),), 0.01, contrast=0.15), _solid(WHITE)),
         0.006,
         _tennis_ball,
+        wall_m=0.0035,
     ),
     "rugby_ball": _Spec(
         "ball",
@@ -509,6 +567,7 @@ _SPECS: dict[str, _Spec] = {
         (_tex("noise", ((0.55, 0.30, 0.15),), 0.02, contrast=0.2),),
         0.14,
         _rugby_ball,
+        wall_m=0.003,
     ),
     "mug": _Spec(
         "container",
@@ -525,9 +584,16 @@ _SPECS: dict[str, _Spec] = {
         (_solid((0.55, 0.80, 0.90)), _solid((0.10, 0.30, 0.80)), _tex("stripes", (RED, WHITE), 0.02, 2)),
         0.02,
         _bottle,
+        wall_m=0.0008,
     ),
     "can": _Spec(
-        "container", "metal", ("metal",), (_tex("stripes", (RED, (0.85, 0.85, 0.88)), 0.04, 2),), 0.06, _can
+        "container",
+        "metal",
+        ("metal",),
+        (_tex("stripes", (RED, (0.85, 0.85, 0.88)), 0.04, 2),),
+        0.06,
+        _can,
+        wall_m=0.0003,
     ),
     "shoe": _Spec(
         "footwear",
@@ -552,6 +618,7 @@ _SPECS: dict[str, _Spec] = {
         (_solid((0.98, 0.85, 0.10)), _solid((0.95, 0.50, 0.05)), _solid(BLACK)),
         0.01,
         _rubber_duck,
+        wall_m=0.0015,
     ),
     "teddy_bear": _Spec(
         "plush_toy",
@@ -588,6 +655,7 @@ _SPECS: dict[str, _Spec] = {
         (_tex("noise", ((0.78, 0.62, 0.42),), 0.02, contrast=0.1), _solid((0.75, 0.70, 0.55))),
         0.05,
         _cardboard_box,
+        wall_m=0.0015,
     ),
     "dumbbell": _Spec(
         "sports",
@@ -652,6 +720,7 @@ _SPECS: dict[str, _Spec] = {
         (_tex("stripes", ((0.98, 0.45, 0.05), WHITE), 0.06, 2), _solid((0.15, 0.15, 0.15))),
         0.02,
         _traffic_cone,
+        wall_m=0.003,
     ),
     "pencil": _Spec(
         "stationery",
@@ -668,6 +737,7 @@ _SPECS: dict[str, _Spec] = {
         (_tex("noise", ((0.45, 0.25, 0.12),), 0.01), _solid((0.2, 0.12, 0.06))),
         0.016,
         _bag,
+        wall_m=0.0015,
     ),
     "wooden_block": _Spec(
         "toy",
@@ -727,6 +797,7 @@ _SPECS: dict[str, _Spec] = {
         (_solid((0.75, 0.88, 0.90)), _solid((0.85, 0.75, 0.20))),
         0.024,
         _jar,
+        wall_m=0.0025,
     ),
     "toy_brick": _Spec("toy", "plastic", ("plastic",), (_solid((0.85, 0.12, 0.10)),), 0.0018, _toy_brick),
     "spinning_top": _Spec(
@@ -756,10 +827,11 @@ def _build(name: str) -> ObjectAsset:
         if spec.default_material in spec.alternatives
         else ((spec.default_material,) + spec.alternatives)
     )
+    shape = _centred(spec.build())
     return ObjectAsset(
         name,
         spec.category,
-        _centred(spec.build()),
+        shape if spec.wall_m is None else Shell(shape, spec.wall_m),
         spec.default_material,
         alternatives,
         spec.textures,
@@ -778,7 +850,16 @@ def list_categories() -> list[str]:
 
 
 def get_object(name: str, size_m: float | None = None) -> ObjectAsset:
-    """The library object ``name``, scaled so that its largest extent is ``size_m`` when given."""
+    """The library object ``name``, scaled so that its largest extent is ``size_m`` when given.
+
+    ``name`` may also be ``"file:<mesh path>?<options>"`` or ``"ply:<splat path>?<options>"``
+    (see ``data_gen.assets.imported`` for the options).
+    """
+    if name.startswith(("file:", "ply:")):
+        from data_gen.assets.imported import imported_object  # lazy: imported.py builds on this module
+
+        asset = imported_object(name)
+        return asset if size_m is None else asset.scaled_to(size_m)
     if name not in _SPECS:
         raise KeyError(f"unknown object {name!r}; valid objects: {', '.join(list_objects())}")
     asset = _build(name)

@@ -8,19 +8,26 @@ axis-aligned boxes above supporting surfaces where objects may be dropped.
 The simulator reads ``sdf`` (contact); the renderer reads the boxes and the
 floor texture (via ``gaussians_from_geometry.gaussians_from_scene``); the shard
 writer reads ``to_world_state``. Nobody changes a scene after it is built.
+
+``get_scene("ply:<path>?up=y&scale=1.0")`` loads a captured 3DGS scene
+(``data_gen.assets.captured``): its splats render, and only the ground plane
+z = 0 collides (captured furniture is not collidable yet).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data_gen.assets.materials import ProceduralTexture, get_material
 from data_gen.assets.shapes import Box, Transformed, axis_angle_wxyz
+
+if TYPE_CHECKING:  # a runtime import would be circular (gaussians_from_geometry imports this module)
+    from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -97,6 +104,10 @@ class StaticScene:
     boxes: tuple[SceneBox, ...]
     regions: tuple[PlacementRegion, ...]
     floor_half_extent_m: float = 3.0
+    splats: SurfaceGaussians | None = field(default=None, compare=False)
+    """Captured scenes: the file's splats (world frame, Z-up, m), rendered instead of floor and boxes."""
+    source: str = ""
+    """Captured scenes: the reference the scene was loaded from."""
 
     def __post_init__(self) -> None:
         get_material(self.floor_material)
@@ -130,7 +141,10 @@ class StaticScene:
 
     def to_world_state(self) -> dict[str, Any]:
         """The world-state ``scene`` entry (JSON-ready)."""
-        return {
+        extra: dict[str, Any] = {}
+        if self.splats is not None:
+            extra = {"source": self.source, "num_splats": len(self.splats)}
+        return extra | {
             "name": self.name,
             "kind": self.kind,
             "floor": {
@@ -316,7 +330,15 @@ def list_scenes() -> list[str]:
 
 
 def get_scene(name: str) -> StaticScene:
-    """The scene layout ``name``; an unknown name lists the valid ones."""
+    """The scene layout ``name``; an unknown name lists the valid ones.
+
+    ``"ply:<path>?up=<axis>&scale=<factor>&..."`` loads a captured 3DGS scene
+    (see ``data_gen.assets.captured``).
+    """
+    if name.startswith("ply:"):
+        from data_gen.assets.captured import captured_scene  # lazy: captured.py builds on this module
+
+        return captured_scene(name)
     if name not in _LAYOUTS:
         raise KeyError(f"unknown scene {name!r}; valid scenes: {', '.join(list_scenes())}")
     return _LAYOUTS[name]()

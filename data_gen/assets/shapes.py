@@ -11,7 +11,8 @@ Every shape answers:
 Primitives live in their own local frame (centred at the origin; axial shapes
 along +z). ``Transformed`` places a child with a rotation (w, x, y, z) and a
 translation; ``Scaled`` scales uniformly; ``Union``, ``Intersection``,
-``Difference`` and ``Offset`` compose.
+``Difference`` and ``Offset`` compose; ``Shell`` hollows a solid into a closed
+wall of a given thickness (bottles, cans, boxes, balls).
 
 Exactness: the primitive SDFs are exact Euclidean distances except
 ``Ellipsoid`` (a first-order approximation, exact sign, exact on the surface).
@@ -464,6 +465,46 @@ class Offset(Shape):
         b = self.child.bounds()
         g = max(self.distance_m, 0.0)
         return np.stack([b[0] - g, b[1] + g])
+
+    def part_ids(self) -> tuple[int, ...]:
+        return self.child.part_ids()
+
+
+@dataclass(frozen=True)
+class Shell(Shape):
+    """A closed hollow version of ``child``: the material between its surface and the inward offset by
+    ``thickness_m``. sdf = max(d, -d - t) = |d + t/2| - t/2 with d = child sdf (exact when d is exact;
+    where d is a bound inside, e.g. a Union, the wall is at least ``thickness_m`` thick).
+
+    ``outer`` is the visible surface (``child``); ``cavity()`` is the sealed void ``Offset(child, -t)``.
+    """
+
+    child: Shape
+    thickness_m: float
+
+    def __post_init__(self) -> None:
+        _positive("Shell", "thickness_m", self.thickness_m)
+        thinnest = float(self.child.extent_m().min())
+        if self.thickness_m >= 0.5 * thinnest:
+            raise ValueError(
+                f"Shell: thickness_m must be < half the child's thinnest extent ({0.5 * thinnest} m), "
+                f"got {self.thickness_m}"
+            )
+
+    @property
+    def outer(self) -> Shape:
+        return self.child
+
+    def cavity(self) -> Shape:
+        """The sealed void inside the wall (a solid shape), m."""
+        return Offset(self.child, -self.thickness_m)
+
+    def _sdf_part(self, p: F64) -> tuple[F64, I32]:
+        d, part = self.child._sdf_part(p)
+        return np.maximum(d, -d - self.thickness_m), part
+
+    def bounds(self) -> F64:
+        return self.child.bounds()
 
     def part_ids(self) -> tuple[int, ...]:
         return self.child.part_ids()

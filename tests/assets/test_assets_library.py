@@ -37,13 +37,14 @@ def test_library_size_and_metadata():
 @pytest.mark.parametrize("name", NAMES)
 def test_mesh_watertight_and_sdf_sign_agrees(name):
     a = get_object(name)
-    mesh = a.to_mesh()
+    mesh = a.to_mesh()  # the visible surface: for hollow objects the outer wall only
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    solid = a.shape.outer if a.is_hollow else a.shape
     rng = np.random.default_rng(0)
     lo, hi = a.shape.bounds()
     pad = 0.1 * (hi - lo)  # 10% margin so box-like objects get outside points too
     pts = rng.uniform(lo - pad, hi + pad, size=(3000, 3))
-    inside_sdf = a.shape.sdf(pts) < 0
+    inside_sdf = solid.sdf(pts) < 0
     assert 0.02 < inside_sdf.mean() < 1.0  # the test points straddle the surface
     agree = np.mean(points_inside_mesh(mesh, pts) == inside_sdf)
     assert agree > 0.99, f"{name}: SDF sign and mesh winding number agree on {agree:.4f} of points"
@@ -51,7 +52,7 @@ def test_mesh_watertight_and_sdf_sign_agrees(name):
     # SDF is 0 with zero gradient; on a clean surface the gradient has unit length (creases excepted)
     p, _ = trimesh.sample.sample_surface(mesh, 4000, seed=np.random.default_rng(0))
     eps = 1e-3 * a.nominal_size_m
-    grad = np.stack([(a.shape.sdf(p + e) - a.shape.sdf(p - e)) / (2 * eps) for e in np.eye(3) * eps], 1)
+    grad = np.stack([(solid.sdf(p + e) - solid.sdf(p - e)) / (2 * eps) for e in np.eye(3) * eps], 1)
     assert np.mean(np.linalg.norm(grad, axis=1) < 0.5) < 0.001
 
 
@@ -61,7 +62,8 @@ def test_sdf_sign_agrees_with_trimesh_contains():
         a = get_object(name)
         mesh = a.to_mesh(spacing_m=a.nominal_size_m / 30)  # coarser mesh keeps the ray test fast
         pts = np.random.default_rng(1).uniform(*a.shape.bounds(), size=(200, 3))
-        agree = np.mean(mesh.contains(pts) == (a.shape.sdf(pts) < 0))
+        solid = a.shape.outer if a.is_hollow else a.shape  # the mesh is the visible (outer) surface
+        agree = np.mean(mesh.contains(pts) == (solid.sdf(pts) < 0))
         assert agree > 0.98, f"{name}: {agree}"
 
 
@@ -79,15 +81,16 @@ def test_scaling_to_requested_size():
 
 
 def test_volume_of_simple_objects_vs_analytic():
-    ball = get_object("ball")  # sphere, r = 0.11 m
-    assert ball.volume_m3() == pytest.approx(4 / 3 * np.pi * 0.11**3, rel=0.005)
+    ball = get_object("ball")  # hollow sphere, r = 0.11 m, wall 3 mm: the material only
+    assert ball.is_hollow
+    assert ball.volume_m3() == pytest.approx(4 / 3 * np.pi * (0.11**3 - 0.107**3), rel=0.005)
     ring = get_object("ring_toy")  # torus R = 0.08, r = 0.012
     assert ring.volume_m3() == pytest.approx(2 * np.pi**2 * 0.08 * 0.012**2, rel=0.01)
 
 
 def test_interior_points_inside_and_dense():
-    a = get_object("rubber_duck")
-    spacing = 0.005
+    a = get_object("teddy_bear")
+    spacing = 0.006
     p1 = a.interior_points(spacing, np.random.default_rng(3))
     p2 = a.interior_points(spacing, np.random.default_rng(3))
     np.testing.assert_array_equal(p1, p2)

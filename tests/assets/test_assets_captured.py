@@ -1,0 +1,138 @@
+"""Captured splats: get_scene("ply:...") (file splats render, floor z = 0 collides) and get_object("ply:...")."""
+
+import numpy as np
+import pytest
+
+from data_gen.assets.gaussians_from_geometry import (
+    SurfaceGaussians,
+    gaussians_from_object,
+    gaussians_from_scene,
+)
+from data_gen.assets.library import get_object
+from data_gen.assets.ply_io import export_splats
+from data_gen.assets.scenes import get_scene
+from data_gen.assets.voxel_shape import VoxelShape
+
+
+def _splats(means: np.ndarray, opacity: float = 0.9) -> SurfaceGaussians:
+    n = len(means)
+    rng = np.random.default_rng(0)
+    return SurfaceGaussians(
+        means,
+        np.full((n, 3), 0.003),
+        np.tile([1.0, 0, 0, 0], (n, 1)),
+        rng.uniform(0, 1, (n, 3)),
+        np.full(n, opacity),
+        np.zeros(n, np.int32),
+    )
+
+
+def _y_up_room(tmp_path):
+    """A Y-up capture in centimetres: a floor grid at file y = 30 over x in [100, 300], z in [-200, 0]."""
+    u, v = np.meshgrid(np.linspace(100, 300, 41), np.linspace(-200, 0, 41), indexing="ij")
+    floor = np.stack([u.ravel(), np.full(u.size, 30.0), v.ravel()], 1)
+    chair = np.array([[200.0, 75.0, -100.0], [210.0, 75.0, -100.0]])  # two splats 45 cm above the floor
+    g = _splats(np.concatenate([floor, chair]))
+    path = tmp_path / "room.ply"
+    export_splats(path, g)
+    return path, g
+
+
+def test_captured_scene_is_z_up_metric_on_the_floor(tmp_path):
+    path, g = _y_up_room(tmp_path)
+    scene = get_scene(f"ply:{path}?up=y&scale=0.01")
+    assert scene.kind == "captured" and scene.boxes == () and scene.splats is not None
+    # file (x, y, z) cm -> world (x, -z, y) m, then ground=auto puts the floor (1st percentile of z) at 0
+    f = g.means_m.astype(np.float64)
+    expected = np.stack([f[:, 0], -f[:, 2], f[:, 1] - 30.0], 1) * 0.01
+    np.testing.assert_allclose(scene.splats.means_m, expected, atol=1e-5)
+    np.testing.assert_allclose(scene.splats.scales_m, 0.003 * 0.01, rtol=1e-5)
+    out = gaussians_from_scene(scene, spacing_m=0.05)  # the file's splats, not a procedural floor
+    assert out is scene.splats
+    # one region centred on the footprint x in [1, 3], y in [0, 2]: half width 0.25 x 2 m = 0.5 m
+    (region,) = scene.regions
+    np.testing.assert_allclose(region.min_m, [1.5, 0.5, 0.1], atol=0.03)
+    np.testing.assert_allclose(region.max_m, [2.5, 1.5, 0.9], atol=0.03)
+    # collision geometry is the ground plane only (captured furniture is not collidable)
+    np.testing.assert_allclose(scene.sdf([[2.0, 1.0, 0.45], [0.0, 0.0, -0.2]]), [0.45, -0.2])
+    ws = scene.to_world_state()
+    assert ws["kind"] == "captured" and ws["num_splats"] == len(g) and ws["boxes"] == []
+
+
+def test_captured_scene_keep_ground_and_errors(tmp_path):
+    path, _ = _y_up_room(tmp_path)
+    kept = get_scene(f"ply:{path}?up=y&scale=0.01&ground=keep")
+    assert float(np.median(kept.splats.means_m[:, 2])) == pytest.approx(0.30, abs=1e-5)
+    with pytest.raises(ValueError, match="ground='floor'"):
+        get_scene(f"ply:{path}?ground=floor")
+    with pytest.raises(ValueError, match="unknown option 'units'"):
+        get_scene(f"ply:{path}?units=cm")
+    with pytest.raises(FileNotFoundError, match="nowhere.ply"):
+        get_scene(f"ply:{tmp_path / 'nowhere.ply'}")
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n0\n")
+    with pytest.raises(ValueError, match="bad.ply"):
+        get_scene(f"ply:{bad}")
+    with pytest.raises(KeyError, match="empty_floor"):
+        get_scene("no_such_scene")
+
+
+def _sphere_splats(tmp_path, radius_m: float = 0.1, n: int = 20000):
+    """Splats on a sphere (Fibonacci lattice) centred at (1, 2, 3), Z-up, metres."""
+    i = np.arange(n) + 0.5
+    phi, th = np.arccos(1 - 2 * i / n), np.pi * (1 + 5**0.5) * i
+    p = radius_m * np.stack([np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)], 1)
+    g = _splats(p + [1.0, 2.0, 3.0])
+    path = tmp_path / "ball.ply"
+    export_splats(path, g)
+    return path, g
+
+
+def test_splat_object_renders_its_splats_and_simulates_a_voxel_solid(tmp_path):
+    path, g = _sphere_splats(tmp_path)
+    a = get_object(f"ply:{path}?material=rubber")
+    assert isinstance(a.shape, VoxelShape) and a.category == "imported" and a.default_material == "rubber"
+    # the solid fills the captured surface: volume within 6% of 4/3 pi r^3 (voxel 0.2 m / 32 = 6.25 mm)
+    assert a.volume_m3() == pytest.approx(4 / 3 * np.pi * 0.1**3, rel=0.06)
+    np.testing.assert_allclose(a.size_m, 0.2, atol=0.0125)  # +- 2 voxels
+    rendered = gaussians_from_object(a, np.random.default_rng(0), count=4000)
+    m = g.means_m.astype(np.float64)
+    centre = 0.5 * (m.min(axis=0) + m.max(axis=0))  # the asset is centred on its splats' bounding box
+    np.testing.assert_allclose(centre, [1.0, 2.0, 3.0], atol=1e-5)
+    np.testing.assert_allclose(rendered.means_m, m - centre, atol=1e-6)  # the file's splats, not resampled
+    np.testing.assert_allclose(rendered.colors_rgb, g.colors_rgb, atol=1e-6)  # f_dc float32 round trip
+    assert (
+        a.allowed_materials == ("rubber",) and a.with_material_color("rubber", np.random.default_rng(0)) is a
+    )
+    pts = a.interior_points((a.volume_m3() / 1500) ** (1 / 3), np.random.default_rng(0))
+    assert len(pts) == pytest.approx(1500, rel=0.1) and np.linalg.norm(pts, axis=1).max() < 0.1 + 0.0063
+    big = get_object(f"ply:{path}", size_m=2 * a.nominal_size_m)  # scaling moves splats and solid together
+    assert big.volume_m3() == pytest.approx(8 * a.volume_m3(), rel=1e-9)
+    np.testing.assert_allclose(big.splats.means_m, 2 * a.splats.means_m, rtol=1e-6)
+    np.testing.assert_allclose(big.splats.scales_m, 2 * a.splats.scales_m, rtol=1e-6)
+
+
+def test_splat_object_errors(tmp_path):
+    path, _ = _sphere_splats(tmp_path)
+    with pytest.raises(ValueError, match=r"scale=100 makes the object 20 m across.*\[0.005, 5.0\]"):
+        get_object(f"ply:{path}?scale=100")
+    with pytest.raises(ValueError, match=r"option voxel=0 must be in"):
+        get_object(f"ply:{path}?voxel=0")
+    faint = tmp_path / "faint.ply"
+    export_splats(faint, _splats(np.random.default_rng(0).normal(size=(50, 3)) * 0.1, opacity=0.01))
+    with pytest.raises(ValueError, match="no splat has opacity"):
+        get_object(f"ply:{faint}")
+
+
+def test_voxel_shape_sdf_and_volume_on_a_cube():
+    # a 10 x 10 x 10 block of occupied voxels of 1 cm: the surface runs through the outer voxel centres,
+    # so the solid is a 9 cm cube and the volume (1000 - 488 / 2) cm^3 = 756 cm^3 (9^3 = 729 + edge terms)
+    occ = np.ones((10, 10, 10), bool)
+    shape = VoxelShape(occ, origin_m=(0.0, 0.0, 0.0), voxel_m=0.01)
+    np.testing.assert_allclose(shape.bounds(), [[0.0] * 3, [0.09] * 3], atol=1e-12)
+    boundary = 1000 - 8**3
+    assert shape.own_volume_m3() == pytest.approx((1000 - boundary / 2) * 1e-6, rel=1e-12)
+    pts = np.array([[0.02, 0.045, 0.045], [0.045, 0.045, -0.02], [0.045, 0.045, 0.0], [0.2, 0.045, 0.045]])
+    np.testing.assert_allclose(shape.sdf(pts), [-0.02, 0.02, 0.0, 0.11], atol=1e-9)
+    mesh = shape.own_surface_mesh()
+    assert mesh.is_watertight and mesh.volume == pytest.approx(0.09**3, rel=0.02)
