@@ -1,0 +1,229 @@
+"""Per-pixel physics metrics on object pixels of the last frame.
+
+One formula, two doors: every metric has a functional core (``*_update``
+returns running sums and counts for one batch, ``*_compute`` turns the summed
+state into the value) and a torchmetrics :class:`~torchmetrics.Metric` class
+that stores the same sums and counts with ``dist_reduce_fx="sum"`` and calls
+the same helpers, so distributed reduction is exact.
+
+Averaging
+---------
+* ``CollisionF1`` pools true/false positives and false negatives over **all
+  object pixels of all images** (per-pixel F1, what ``BinaryF1Score`` gives on
+  the masked pixels). When there is no positive in the targets and none in the
+  predictions (``tp + fp + fn == 0``) the F1 is ``zero_division`` (0.0 by
+  default, as torchmetrics).
+* The vector errors (``GravityAngularError`` in degrees, ``GravityMagnitudeError``
+  in N, ``SceneFlowEPE`` in m) are averaged **per image first** (mean over that
+  image's valid pixels), **then over images**. An image with no valid pixel
+  contributes nothing (it is not counted); when no image of the whole epoch has
+  a valid pixel the value is NaN.
+* Valid pixels: object pixels (``mask`` True). For the angular error, pixels
+  whose ground-truth vector has zero length (``|g| <= ZERO_LENGTH_EPS``) are
+  excluded too: their direction is undefined. A zero-length *prediction* has
+  cosine 0 with any direction, i.e. an error of 90 degrees. The cosine is
+  clamped to [-1, 1] before ``acos``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+from torchmetrics import Metric
+
+ZERO_LENGTH_EPS: float = 1e-8
+"""Vectors with a norm at or below this (in their own unit) count as zero-length."""
+
+
+# --------------------------------------------------------------------------- #
+# Input checks
+# --------------------------------------------------------------------------- #
+def _check_vector_inputs(preds: Tensor, target: Tensor, mask: Tensor) -> None:
+    if preds.shape != target.shape:
+        raise ValueError(f"preds shape {tuple(preds.shape)} must equal target shape {tuple(target.shape)}")
+    if preds.ndim != 4 or preds.shape[1] != 3:
+        raise ValueError(f"preds must be (B, 3, H, W), got shape {tuple(preds.shape)}")
+    expected = (preds.shape[0], *preds.shape[2:])
+    if tuple(mask.shape) != expected:
+        raise ValueError(f"mask must be (B, H, W) = {expected}, got shape {tuple(mask.shape)}")
+
+
+def _check_scalar_inputs(preds: Tensor, target: Tensor, mask: Tensor) -> None:
+    if preds.shape != target.shape or preds.shape != mask.shape:
+        raise ValueError(
+            f"preds, target and mask must share one (B, H, W) shape, got "
+            f"{tuple(preds.shape)}, {tuple(target.shape)}, {tuple(mask.shape)}"
+        )
+    if preds.ndim != 3:
+        raise ValueError(f"preds must be (B, H, W), got shape {tuple(preds.shape)}")
+
+
+def _per_image_mean(err: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
+    """Sum over images of the per-image mean error over valid pixels, and the number of images with one.
+
+    err, valid: (B, H, W). Returns (sum of per-image means, count of images) as float64 scalars.
+    """
+    valid = valid.to(torch.float64)
+    n = valid.flatten(1).sum(1)
+    s = (err.to(torch.float64) * valid).flatten(1).sum(1)
+    has = n > 0
+    means = s[has] / n[has]
+    return means.sum(), has.sum().to(torch.float64)
+
+
+def _mean_from_state(total: Tensor, count: Tensor) -> Tensor:
+    if count <= 0:
+        return torch.tensor(math.nan, dtype=torch.float64)
+    return total / count
+
+
+# --------------------------------------------------------------------------- #
+# Functional cores
+# --------------------------------------------------------------------------- #
+def collision_f1_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """True positives, false positives, false negatives over object pixels.
+
+    preds: (B, H, W) bool (or {0,1}) predicted contact; target: (B, H, W) {0,1}; mask: (B, H, W) bool.
+    """
+    _check_scalar_inputs(preds, target, mask)
+    m = mask.bool()
+    p = preds.bool() & m
+    t = target.bool() & m
+    tp = (p & t).sum().to(torch.float64)
+    fp = (p & ~t).sum().to(torch.float64)
+    fn = (~p & t & m).sum().to(torch.float64)
+    return tp, fp, fn
+
+
+def collision_f1_compute(tp: Tensor, fp: Tensor, fn: Tensor, zero_division: float = 0.0) -> Tensor:
+    """F1 = 2 tp / (2 tp + fp + fn); ``zero_division`` when the denominator is 0."""
+    denom = 2 * tp + fp + fn
+    if denom <= 0:
+        return torch.tensor(float(zero_division), dtype=torch.float64)
+    return 2 * tp / denom
+
+
+def collision_f1(preds: Tensor, target: Tensor, mask: Tensor, zero_division: float = 0.0) -> Tensor:
+    """Per-pixel F1 of predicted contact over object pixels (see module docstring)."""
+    return collision_f1_compute(*collision_f1_update(preds, target, mask), zero_division=zero_division)
+
+
+def angular_error_deg(preds: Tensor, target: Tensor) -> Tensor:
+    """Angle between (B, 3, H, W) vectors in degrees, (B, H, W); cosine clamped to [-1, 1]."""
+    p = preds.to(torch.float64)
+    g = target.to(torch.float64)
+    dot = (p * g).sum(1)
+    norms = p.norm(dim=1) * g.norm(dim=1)
+    cos = torch.where(
+        norms > 0, dot / norms.clamp_min(torch.finfo(torch.float64).tiny), torch.zeros_like(dot)
+    )
+    return torch.rad2deg(torch.acos(cos.clamp(-1.0, 1.0)))
+
+
+def gravity_angular_error_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+    """(sum of per-image mean angular errors in degrees, number of images with a valid pixel)."""
+    _check_vector_inputs(preds, target, mask)
+    valid = mask.bool() & (target.to(torch.float64).norm(dim=1) > ZERO_LENGTH_EPS)
+    return _per_image_mean(angular_error_deg(preds, target), valid)
+
+
+def gravity_magnitude_error_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+    """(sum of per-image mean | |p| - |g| | in N, number of images with an object pixel)."""
+    _check_vector_inputs(preds, target, mask)
+    err = (preds.to(torch.float64).norm(dim=1) - target.to(torch.float64).norm(dim=1)).abs()
+    return _per_image_mean(err, mask.bool())
+
+
+def scene_flow_epe_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+    """(sum of per-image mean endpoint error |p - g| in m, number of images with an object pixel)."""
+    _check_vector_inputs(preds, target, mask)
+    err = (preds.to(torch.float64) - target.to(torch.float64)).norm(dim=1)
+    return _per_image_mean(err, mask.bool())
+
+
+def gravity_angular_error(preds: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+    """Mean angular error in degrees, per image then over images (NaN when no valid pixel)."""
+    return _mean_from_state(*gravity_angular_error_update(preds, target, mask))
+
+
+def gravity_magnitude_error(preds: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+    """Mean magnitude error in N, per image then over images (NaN when no object pixel)."""
+    return _mean_from_state(*gravity_magnitude_error_update(preds, target, mask))
+
+
+def scene_flow_epe(preds: Tensor, target: Tensor, mask: Tensor) -> Tensor:
+    """Average endpoint error in m, per image then over images (NaN when no object pixel)."""
+    return _mean_from_state(*scene_flow_epe_update(preds, target, mask))
+
+
+# --------------------------------------------------------------------------- #
+# Metric classes
+# --------------------------------------------------------------------------- #
+class CollisionF1(Metric):
+    """Per-pixel F1 of contact on object pixels, pooled over all images (see module docstring)."""
+
+    is_differentiable = False
+    higher_is_better = True
+    full_state_update = False
+
+    def __init__(self, zero_division: float = 0.0, **kwargs) -> None:
+        super().__init__(**kwargs)
+        if zero_division not in (0.0, 1.0):
+            raise ValueError(f"zero_division must be 0.0 or 1.0, got {zero_division!r}")
+        self.zero_division = float(zero_division)
+        for name in ("tp", "fp", "fn"):
+            self.add_state(name, default=torch.tensor(0.0, dtype=torch.float64), dist_reduce_fx="sum")
+
+    def update(self, preds: Tensor, target: Tensor, mask: Tensor) -> None:
+        tp, fp, fn = collision_f1_update(preds, target, mask)
+        self.tp += tp
+        self.fp += fp
+        self.fn += fn
+
+    def compute(self) -> Tensor:
+        return collision_f1_compute(self.tp, self.fp, self.fn, self.zero_division)
+
+
+class _PerImageMeanMetric(Metric):
+    """Shared state of the per-image-then-over-images vector errors."""
+
+    is_differentiable = False
+    higher_is_better = False
+    full_state_update = False
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.add_state("total", default=torch.tensor(0.0, dtype=torch.float64), dist_reduce_fx="sum")
+        self.add_state("count", default=torch.tensor(0.0, dtype=torch.float64), dist_reduce_fx="sum")
+
+    @staticmethod
+    def _update_fn(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+        raise NotImplementedError
+
+    def update(self, preds: Tensor, target: Tensor, mask: Tensor) -> None:
+        total, count = self._update_fn(preds, target, mask)
+        self.total += total
+        self.count += count
+
+    def compute(self) -> Tensor:
+        return _mean_from_state(self.total, self.count)
+
+
+class GravityAngularError(_PerImageMeanMetric):
+    """Mean angle between predicted and true gravity force, degrees (zero-length truths excluded)."""
+
+    _update_fn = staticmethod(gravity_angular_error_update)
+
+
+class GravityMagnitudeError(_PerImageMeanMetric):
+    """Mean absolute difference of gravity force magnitudes, N."""
+
+    _update_fn = staticmethod(gravity_magnitude_error_update)
+
+
+class SceneFlowEPE(_PerImageMeanMetric):
+    """Average endpoint error of scene flow, m."""
+
+    _update_fn = staticmethod(scene_flow_epe_update)
