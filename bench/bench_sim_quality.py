@@ -1,0 +1,171 @@
+"""Speed vs accuracy of the simulator quality presets, measured against the `reference` preset.
+
+For each fixed scene (1 rigid object dropping, 5 mixed objects colliding, 10 soft objects piling) and
+each preset: wall time per simulated second, centre-of-mass trajectory RMS error (m and % of the
+distance travelled), per-point displacement RMS error relative to the motion (probe points deformed
+with each run's own skinning basis and handle transforms), max penetration of a contact sphere into
+the ground (m), Newton iterations.  Prints a table, writes bench/results/sim_quality.json and a PNG.
+
+    python bench/bench_sim_quality.py            # full: 2 s per scene, every preset
+    python bench/bench_sim_quality.py --quick    # a few minutes on 2 CPU cores (shorter, coarser reference)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from sim_bench_scenes import QUICK_TRAINING, SCENES  # noqa: E402
+
+from data_gen.sim.presets import QualityPreset, load_preset  # noqa: E402
+from data_gen.sim.reduced import deform  # noqa: E402
+from data_gen.sim.world import Simulator  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+PRESETS = ["draft", "standard", "high", "reference"]
+FPS = 25.0
+GRAVITY = (0.0, 0.0, -9.81)
+
+
+def probe_positions(result, specs, num_probe: int = 200) -> np.ndarray:
+    """World positions (T, objects * num_probe, 3) of fixed rest points of every object."""
+    out = []
+    for k, (track, spec) in enumerate(zip(result.objects, specs)):
+        pts = np.asarray(spec.points_rest_m)
+        idx = np.random.default_rng(k).choice(len(pts), size=min(num_probe, len(pts)), replace=False)
+        x0 = torch.from_numpy(pts[idx])
+        weights, grads = track.basis.evaluate(x0)
+        frames = [deform(x0, weights, grads, torch.from_numpy(z))[0].numpy() for z in track.handle_transforms]
+        out.append(np.stack(frames))
+    return np.concatenate(out, axis=1)
+
+
+def run_one(scene_name: str, preset: QualityPreset, seconds: float, training, seed: int = 0) -> dict:
+    scene, specs = SCENES[scene_name](training)
+    t0 = time.perf_counter()
+    sim = Simulator(scene, specs, GRAVITY, preset, seed=seed)
+    setup = time.perf_counter() - t0
+    result = sim.run(num_frames=int(round(seconds * FPS)) + 1, fps=FPS)
+    com = np.stack([tr.com_m for tr in result.objects], axis=1)  # (T, N, 3)
+    penetration = max(
+        float((tr.contact_radius_m[None] - tr.cubature_positions_m[:, :, 2]).max()) for tr in result.objects
+    )
+    return {
+        "scene": scene_name,
+        "preset": preset.name,
+        "seconds": seconds,
+        "setup_s": setup,
+        "wall_s": result.info.wall_time_s,
+        "wall_per_sim_s": result.info.wall_time_s / seconds,
+        "newton_iterations": result.info.newton_iterations,
+        "steps": result.info.num_steps,
+        "awake_fraction": result.info.awake_object_steps / max(1, result.info.object_steps),
+        "max_ground_penetration_m": max(0.0, penetration),
+        "contact_radius_m": float(min(tr.contact_radius_m.min() for tr in result.objects)),
+        "events": len(result.collisions),
+        "timings_s": result.info.timings_s,
+        "_com": com,
+        "_probe": probe_positions(result, specs),
+    }
+
+
+def compare(run: dict, ref: dict) -> dict:
+    com, com_ref = run["_com"], ref["_com"]
+    err = np.linalg.norm(com - com_ref, axis=2)  # (T, N)
+    travelled = np.linalg.norm(np.diff(com_ref, axis=0), axis=2).sum(axis=0)  # path length per object
+    probe, probe_ref = run["_probe"], ref["_probe"]
+    motion = np.sqrt(np.mean(np.sum((probe_ref - probe_ref[:1]) ** 2, axis=2)))
+    point_rms = np.sqrt(np.mean(np.sum((probe - probe_ref) ** 2, axis=2)))
+    return {
+        "com_rms_m": float(np.sqrt(np.mean(err**2))),
+        "com_rms_rel_travelled": float(np.sqrt(np.mean(err**2)) / max(travelled.mean(), 1e-12)),
+        "point_rms_m": float(point_rms),
+        "point_rms_rel_motion": float(point_rms / max(motion, 1e-12)),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="short runs and a coarser reference (minutes)")
+    parser.add_argument("--scenes", nargs="*", default=list(SCENES))
+    parser.add_argument("--seconds", type=float, default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    seconds = args.seconds or (0.6 if args.quick else 2.0)
+    presets = {name: load_preset(name) for name in PRESETS}
+    if args.quick:
+        # the quick reference keeps the reference's time step and tolerance but caps cubature/handles
+        presets["reference"] = presets["reference"].replace(num_cubature_points=256, max_handles=6)
+    training = QUICK_TRAINING
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "quick": args.quick,
+        "seconds": seconds,
+        "fps": FPS,
+        "torch_threads": 1,
+        "reference_preset": presets["reference"].__dict__,
+        "note": "wall times on a shared 2-core CPU",
+    }
+    rows = []
+    for scene_name in args.scenes:
+        runs = {name: run_one(scene_name, preset, seconds, training) for name, preset in presets.items()}
+        for name in PRESETS:
+            row = {k: v for k, v in runs[name].items() if not k.startswith("_")}
+            row.update(compare(runs[name], runs["reference"]))
+            row["speedup_vs_reference"] = runs["reference"]["wall_s"] / runs[name]["wall_s"]
+            rows.append(row)
+            print(
+                f"{scene_name:14s} {name:9s} wall/sim-s {row['wall_per_sim_s']:8.2f} s  "
+                f"x{row['speedup_vs_reference']:6.1f} vs ref  COM err {100 * row['com_rms_rel_travelled']:6.2f} % "
+                f"({row['com_rms_m'] * 1e3:7.2f} mm)  point err {100 * row['point_rms_rel_motion']:6.2f} %  "
+                f"pen {row['max_ground_penetration_m'] * 1e3:6.2f} mm (r {row['contact_radius_m'] * 1e3:5.1f})  "
+                f"newton {row['newton_iterations']:5d}  setup {row['setup_s']:6.1f} s",
+                flush=True,
+            )
+        # written after every scene, so a long run leaves its finished scenes behind
+        (RESULTS / "sim_quality.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    plot(rows, RESULTS / "sim_quality.png")
+    print(f"wrote {RESULTS / 'sim_quality.json'} and {RESULTS / 'sim_quality.png'}")
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for scene in sorted({r["scene"] for r in rows}):
+        sel = [r for r in rows if r["scene"] == scene and r["preset"] != "reference"]
+        ax.plot(
+            [r["wall_per_sim_s"] for r in sel],
+            [100 * max(r["com_rms_rel_travelled"], 1e-6) for r in sel],
+            "o-",
+            label=scene,
+        )
+        for r in sel:
+            ax.annotate(
+                r["preset"], (r["wall_per_sim_s"], 100 * max(r["com_rms_rel_travelled"], 1e-6)), fontsize=7
+            )
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time per simulated second (s, 1 CPU thread)")
+    ax.set_ylabel("COM RMS error vs reference (% of distance travelled)")
+    ax.axhline(5.0, color="grey", lw=0.8, ls="--")
+    ax.legend()
+    ax.set_title("NewtPhys simulator: speed vs accuracy per preset")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+if __name__ == "__main__":
+    main()

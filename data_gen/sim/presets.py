@@ -1,0 +1,94 @@
+"""Simulation quality presets: typed view of ``conf/quality/<name>.yaml``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import yaml
+
+PRESET_DIR = Path(__file__).resolve().parents[2] / "conf" / "quality"
+
+
+@dataclass(frozen=True)
+class QualityPreset:
+    """Numerical settings of one quality level.
+
+    ``dt_s = 1 / (fps * substeps_per_frame)``; contact stiffness per cubature sphere is
+    ``contact_stiffness_factor * object_mass_kg / dt_s**2`` (N/m).
+    """
+
+    name: str
+    num_cubature_points: int
+    max_handles: int
+    substeps_per_frame: int
+    max_contact_substeps: int
+    newton_iterations: int
+    newton_tolerance: float
+    line_search_steps: int
+    contact_stiffness_factor: float
+    friction_smoothing_m_s: float
+    skinning_training_steps: int
+    sleep_speed_m_s: float
+    sleep_steps: int
+
+    def __post_init__(self) -> None:
+        positive_ints = (
+            "num_cubature_points",
+            "max_handles",
+            "substeps_per_frame",
+            "max_contact_substeps",
+            "newton_iterations",
+            "line_search_steps",
+            "sleep_steps",
+        )
+        for key in positive_ints:
+            value = getattr(self, key)
+            if int(value) != value or value < 1:
+                raise ValueError(f"preset {self.name!r}: {key}={value!r} must be an integer >= 1")
+        for key in ("newton_tolerance", "contact_stiffness_factor", "friction_smoothing_m_s"):
+            value = getattr(self, key)
+            if not value > 0:
+                raise ValueError(f"preset {self.name!r}: {key}={value!r} must be > 0")
+        if self.sleep_speed_m_s < 0:
+            raise ValueError(f"preset {self.name!r}: sleep_speed_m_s={self.sleep_speed_m_s!r} must be >= 0")
+        if self.skinning_training_steps < 0:
+            raise ValueError(
+                f"preset {self.name!r}: skinning_training_steps={self.skinning_training_steps!r} must be >= 0"
+            )
+
+    def dt_s(self, fps: float) -> float:
+        """Simulation time step (s) at a given frame rate (frames/s)."""
+        if not fps > 0:
+            raise ValueError(f"fps={fps!r} must be > 0")
+        return 1.0 / (fps * self.substeps_per_frame)
+
+    def replace(self, **changes: object) -> QualityPreset:
+        """Copy with some fields changed (validated again)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        unknown = set(changes) - set(values)
+        if unknown:
+            raise ValueError(f"unknown preset fields {sorted(unknown)}; valid: {sorted(values)}")
+        values.update(changes)
+        return QualityPreset(**values)  # type: ignore[arg-type]
+
+
+def available_presets(preset_dir: Path = PRESET_DIR) -> list[str]:
+    """Names of the presets found in ``preset_dir``."""
+    return sorted(p.stem for p in preset_dir.glob("*.yaml"))
+
+
+def load_preset(name: str, preset_dir: Path = PRESET_DIR) -> QualityPreset:
+    """Load ``conf/quality/<name>.yaml``; unknown names list the valid ones."""
+    path = preset_dir / f"{name}.yaml"
+    if not path.is_file():
+        raise ValueError(f"unknown quality preset {name!r}; valid presets: {available_presets(preset_dir)}")
+    data = yaml.safe_load(path.read_text())
+    known = {f.name for f in fields(QualityPreset)}
+    unknown = set(data) - known
+    missing = known - set(data)
+    if unknown or missing:
+        raise ValueError(
+            f"preset file {path}: unknown keys {sorted(unknown)}, missing keys {sorted(missing)}"
+        )
+    return QualityPreset(**data)

@@ -1,0 +1,358 @@
+"""What a simulation run records: per-frame object tracks, contact events and run info.
+
+Units: m, kg, s, N, Pa.  Object ids are 1-based; partner id 0 is the static scene and
+``NO_PARTNER`` (-1) marks a cubature point without contact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from data_gen.sim.reduced import DTYPE, ReducedObject, deform, q_to_z
+from data_gen.sim.skinning import SkinningBasis
+
+
+@dataclass
+class ObjectTrack:
+    """Per-frame record of one object (T frames, n cubature points, H handles).
+
+    Attributes:
+        object_id, name: 1-based id and name.
+        basis: skinning basis; with ``handle_transforms`` it deforms any rest point (see :meth:`deform`).
+        points_rest_m: (n,3) cubature rest positions in the object frame; volumes_m3, masses_kg: (n,).
+        contact_radius_m: (n,) contact sphere radii.
+        handle_transforms: (T, 12H) reduced state z (row-major 3x4 delta affine per handle).
+        cubature_positions_m: (T,n,3) world positions.
+        gravity_force_n: (T,n,3) m_i g; contact_force_n: (T,n,3) total contact force (normal + friction).
+        contact_partner: (T,n) int64 id of the dominant contact partner (0 scene, -1 none).
+        hydrostatic_stress_pa: (T,n) tr(sigma)/3, negative = compression.  det_f: (T,n).
+        com_m, velocity_m_s, angular_velocity_rad_s: (T,3); orientation_wxyz: (T,4).
+        asleep: (T,) bool.
+    """
+
+    object_id: int
+    name: str
+    basis: SkinningBasis
+    points_rest_m: np.ndarray
+    volumes_m3: np.ndarray
+    masses_kg: np.ndarray
+    contact_radius_m: np.ndarray
+    handle_transforms: np.ndarray
+    cubature_positions_m: np.ndarray
+    gravity_force_n: np.ndarray
+    contact_force_n: np.ndarray
+    contact_partner: np.ndarray
+    hydrostatic_stress_pa: np.ndarray
+    det_f: np.ndarray
+    com_m: np.ndarray
+    orientation_wxyz: np.ndarray
+    velocity_m_s: np.ndarray
+    angular_velocity_rad_s: np.ndarray
+    asleep: np.ndarray
+
+    @property
+    def num_handles(self) -> int:
+        return self.handle_transforms.shape[1] // 12
+
+    @property
+    def mass_kg(self) -> float:
+        return float(self.masses_kg.sum())
+
+    def deform(self, points_rest_m: np.ndarray | torch.Tensor, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """World positions (m,3) and deformation gradients (m,3,3) of rest points at ``frame``."""
+        if not 0 <= frame < self.handle_transforms.shape[0]:
+            raise ValueError(
+                f"frame={frame} is out of range; allowed: 0 <= frame < {self.handle_transforms.shape[0]}"
+            )
+        pts = torch.as_tensor(np.asarray(points_rest_m, dtype=np.float64))
+        weights, grads = self.basis.evaluate(pts)
+        x, F = deform(pts, weights, grads, torch.from_numpy(self.handle_transforms[frame]))
+        return x.numpy(), F.numpy()
+
+
+@dataclass
+class ContactEvent:
+    """One contact episode between objects a and b (b = 0: static scene), from onset to separation.
+
+    ``frame`` is the first recorded frame at or after the onset; ``position_m``/``normal`` are taken
+    at the step of peak force (normal points from b towards a); ``impulse_n_s`` integrates |F| dt
+    over the episode.
+    """
+
+    frame: int
+    objects: tuple[int, int]
+    position_m: np.ndarray
+    normal: np.ndarray
+    impulse_n_s: float
+    peak_force_n: float
+    onset_time_s: float
+    end_time_s: float
+
+    def to_dict(self) -> dict:
+        """The world-state ``collisions`` entry (DESIGN.md section 3)."""
+        return {
+            "frame": int(self.frame),
+            "objects": [int(self.objects[0]), int(self.objects[1])],
+            "position": [float(v) for v in self.position_m],
+            "normal": [float(v) for v in self.normal],
+            "impulse": float(self.impulse_n_s),
+            "peak_force": float(self.peak_force_n),
+        }
+
+
+class ContactEventTracker:
+    """Turns per-step pair forces into one event per contact onset.
+
+    A pair that separates for fewer than ``gap_steps`` consecutive steps continues the same event.
+    """
+
+    def __init__(self, dt_s: float, substeps_per_frame: int, gap_steps: int) -> None:
+        self.dt = dt_s
+        self.substeps = substeps_per_frame
+        self.gap_steps = gap_steps
+        self.open: dict[tuple[int, int], dict] = {}
+        self.closed: list[ContactEvent] = []
+
+    def update(self, step: int, pair_forces: dict[tuple[int, int], dict]) -> None:
+        """Add step ``step`` (0-based, ends at (step + 1) dt): per pair impulse (N s), peak force, position, normal."""
+        for key, entry in pair_forces.items():
+            ev = self.open.get(key)
+            if ev is None:
+                onset = step + 1
+                ev = {
+                    "frame": -(-onset // self.substeps),
+                    "onset": onset * self.dt,
+                    "impulse": 0.0,
+                    "peak": -1.0,
+                    "pos": entry["position_m"],
+                    "normal": entry["normal"],
+                }
+                self.open[key] = ev
+            ev["impulse"] += entry["impulse_n_s"]
+            if entry["peak_force_n"] > ev["peak"]:
+                ev.update(peak=entry["peak_force_n"], pos=entry["position_m"], normal=entry["normal"])
+            ev["last"] = step
+        for key in list(self.open):
+            if step - self.open[key]["last"] >= self.gap_steps:
+                self._close(key)
+
+    def finish(self) -> list[ContactEvent]:
+        for key in list(self.open):
+            self._close(key)
+        return sorted(self.closed, key=lambda e: (e.frame, e.objects))
+
+    def _close(self, key: tuple[int, int]) -> None:
+        ev = self.open.pop(key)
+        self.closed.append(
+            ContactEvent(
+                ev["frame"],
+                key,
+                np.asarray(ev["pos"]),
+                np.asarray(ev["normal"]),
+                ev["impulse"],
+                ev["peak"],
+                ev["onset"],
+                (ev["last"] + 1) * self.dt,
+            )
+        )
+
+
+@dataclass
+class SimulationInfo:
+    """Run summary (the world state's ``simulation`` entry)."""
+
+    quality: str
+    dt_s: float
+    substeps: int
+    newton_iterations: int
+    wall_time_s: float
+    num_steps: int
+    max_newton_iterations_per_step: int
+    awake_object_steps: int
+    object_steps: int
+    seed: int
+    timings_s: dict[str, float] = field(default_factory=dict)
+    counters: dict[str, int] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "quality": self.quality,
+            "dt": self.dt_s,
+            "substeps": self.substeps,
+            "newton_iterations": self.newton_iterations,
+            "wall_time_s": self.wall_time_s,
+            "num_steps": self.num_steps,
+            "max_newton_iterations_per_step": self.max_newton_iterations_per_step,
+            "awake_object_steps": self.awake_object_steps,
+            "object_steps": self.object_steps,
+            "seed": self.seed,
+            "timings_s": dict(self.timings_s),
+            "counters": dict(self.counters),
+        }
+
+
+@dataclass
+class SimulationResult:
+    """Everything a run produced; frame t is at time t / fps."""
+
+    fps: float
+    num_frames: int
+    gravity_m_s2: np.ndarray
+    objects: list[ObjectTrack]
+    collisions: list[ContactEvent]
+    info: SimulationInfo
+    energies_j: dict[str, np.ndarray]  # kinetic / elastic / contact / gravity, each (T,)
+
+    @property
+    def times_s(self) -> np.ndarray:
+        return np.arange(self.num_frames) / self.fps
+
+
+class FrameRecorder:
+    """Accumulates per-frame arrays of every object while the solver runs."""
+
+    def __init__(
+        self,
+        names: list[str],
+        ids: list[int],
+        models: list[ReducedObject],
+        radii: list[np.ndarray],
+        gravity_m_s2: np.ndarray,
+    ) -> None:
+        self.names, self.ids, self.models, self.radii = names, ids, models, radii
+        self.gravity = torch.as_tensor(np.asarray(gravity_m_s2, dtype=np.float64))
+        self.frames: list[list[dict]] = [[] for _ in models]
+        self.energies: dict[str, list[float]] = {"kinetic": [], "elastic": [], "contact": [], "gravity": []}
+
+    def record(
+        self,
+        qs: list[torch.Tensor],
+        qdots: list[torch.Tensor],
+        forces: list[torch.Tensor],
+        partners: list[torch.Tensor],
+        asleep: list[bool],
+        energies: dict[str, float],
+    ) -> None:
+        for k, model in enumerate(self.models):
+            self.frames[k].append(
+                _object_frame(model, qs[k], qdots[k], forces[k], partners[k], asleep[k], self.gravity)
+            )
+        for key, value in energies.items():
+            self.energies[key].append(value)
+
+    def tracks(self, bases: list[SkinningBasis]) -> list[ObjectTrack]:
+        out = []
+        for k, model in enumerate(self.models):
+            fr = self.frames[k]
+            stack = {key: np.stack([f[key] for f in fr]) for key in fr[0]}
+            out.append(
+                ObjectTrack(
+                    object_id=self.ids[k],
+                    name=self.names[k],
+                    basis=bases[k],
+                    points_rest_m=model.points_rest.numpy(),
+                    volumes_m3=model.volumes_m3.numpy(),
+                    masses_kg=model.masses_kg.numpy(),
+                    contact_radius_m=self.radii[k],
+                    **stack,
+                )
+            )
+        return out
+
+
+def _object_frame(
+    model: ReducedObject,
+    q: torch.Tensor,
+    qdot: torch.Tensor,
+    force: torch.Tensor,
+    partner: torch.Tensor,
+    asleep: bool,
+    gravity: torch.Tensor,
+) -> dict:
+    x = model.positions(q)
+    v = model.point_velocities(qdot)
+    F = model.deformation_gradients(q)
+    m = model.masses_kg
+    com = (m[:, None] * x).sum(0) / model.mass_kg
+    vcom = (m[:, None] * v).sum(0) / model.mass_kg
+    return {
+        "handle_transforms": q_to_z(q).numpy(),
+        "cubature_positions_m": x.numpy(),
+        "gravity_force_n": (m[:, None] * gravity[None, :]).numpy(),
+        "contact_force_n": force.numpy().copy(),
+        "contact_partner": partner.numpy().copy(),
+        "hydrostatic_stress_pa": model.cauchy_hydrostatic(q).numpy(),
+        "det_f": torch.linalg.det(F).numpy(),
+        "com_m": com.numpy(),
+        "orientation_wxyz": best_fit_rotation_wxyz(model.points_rest, x, m),
+        "velocity_m_s": vcom.numpy(),
+        "angular_velocity_rad_s": angular_velocity(x - com, v - vcom, m).numpy(),
+        "asleep": np.bool_(asleep),
+    }
+
+
+def best_fit_rotation_wxyz(
+    points_rest: torch.Tensor, points: torch.Tensor, masses: torch.Tensor
+) -> np.ndarray:
+    """Rotation of the mass-weighted best-fit affine map rest -> current, by polar decomposition, as wxyz."""
+    w = masses / masses.sum()
+    c0 = (w[:, None] * points_rest).sum(0)
+    c = (w[:, None] * points).sum(0)
+    cross = (w[:, None] * (points - c)).T @ (points_rest - c0)
+    u, _, vt = torch.linalg.svd(cross)
+    d = torch.sign(torch.linalg.det(u @ vt))
+    rot = u @ torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=DTYPE)) @ vt
+    return matrix_to_quat_wxyz(rot.numpy())
+
+
+def matrix_to_quat_wxyz(rot: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix (3,3)."""
+    k = (
+        np.array(
+            [
+                [
+                    rot[0, 0] - rot[1, 1] - rot[2, 2],
+                    rot[1, 0] + rot[0, 1],
+                    rot[2, 0] + rot[0, 2],
+                    rot[2, 1] - rot[1, 2],
+                ],
+                [
+                    rot[1, 0] + rot[0, 1],
+                    rot[1, 1] - rot[0, 0] - rot[2, 2],
+                    rot[2, 1] + rot[1, 2],
+                    rot[0, 2] - rot[2, 0],
+                ],
+                [
+                    rot[2, 0] + rot[0, 2],
+                    rot[2, 1] + rot[1, 2],
+                    rot[2, 2] - rot[0, 0] - rot[1, 1],
+                    rot[1, 0] - rot[0, 1],
+                ],
+                [
+                    rot[2, 1] - rot[1, 2],
+                    rot[0, 2] - rot[2, 0],
+                    rot[1, 0] - rot[0, 1],
+                    rot[0, 0] + rot[1, 1] + rot[2, 2],
+                ],
+            ]
+        )
+        / 3.0
+    )
+    vals, vecs = np.linalg.eigh(k)
+    x, y, z, w = vecs[:, np.argmax(vals)]
+    q = np.array([w, x, y, z])
+    return q if q[0] >= 0 else -q
+
+
+def angular_velocity(rel_pos: torch.Tensor, rel_vel: torch.Tensor, masses: torch.Tensor) -> torch.Tensor:
+    """omega (rad/s) = I^-1 L about the centre of mass (points relative to COM, velocities relative to COM)."""
+    ang_mom = (masses[:, None] * torch.linalg.cross(rel_pos, rel_vel, dim=1)).sum(0)
+    r2 = (rel_pos * rel_pos).sum(1)
+    inertia = (
+        masses[:, None, None]
+        * (r2[:, None, None] * torch.eye(3, dtype=DTYPE) - rel_pos[:, :, None] * rel_pos[:, None, :])
+    ).sum(0)
+    return torch.linalg.lstsq(inertia, ang_mom[:, None]).solution[:, 0]

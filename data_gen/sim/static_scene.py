@@ -1,0 +1,198 @@
+"""Kinematic static scene: ground plane z = 0 plus oriented boxes, queried as a signed distance.
+
+The scene costs no degrees of freedom. ``StaticScene.query`` evaluates the signed distance (m,
+positive outside) and its outward unit normal at many points with one warp kernel (CPU or CUDA);
+``StaticScene.query_torch`` is the batched-torch reference used to cross-check the kernel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+import warp as wp
+
+_FAR_M = 1.0e30  # distance reported when the scene is empty
+
+
+def quat_wxyz_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3,3) of a unit quaternion (w, x, y, z); the quaternion is normalised."""
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    norm = float(np.linalg.norm(q))
+    if q.shape != (4,) or not norm > 0:
+        raise ValueError(f"rotation_wxyz={q_wxyz!r} must be a non-zero 4-vector (w, x, y, z)")
+    w, x, y, z = q / norm
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class StaticBox:
+    """An oriented box: centre (m), half extents (m, all > 0), rotation quaternion (w, x, y, z)."""
+
+    center_m: tuple[float, float, float]
+    half_extents_m: tuple[float, float, float]
+    rotation_wxyz: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if len(self.center_m) != 3 or not np.all(np.isfinite(self.center_m)):
+            raise ValueError(f"StaticBox center_m={self.center_m!r} must be 3 finite numbers")
+        he = np.asarray(self.half_extents_m, dtype=np.float64)
+        if he.shape != (3,) or not np.all(he > 0) or not np.all(np.isfinite(he)):
+            raise ValueError(f"StaticBox half_extents_m={self.half_extents_m!r} must be 3 finite numbers > 0")
+        quat_wxyz_to_matrix(np.asarray(self.rotation_wxyz))
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return quat_wxyz_to_matrix(np.asarray(self.rotation_wxyz))
+
+
+@wp.func
+def _box_sdf(p_world: wp.vec3d, center: wp.vec3d, rot: wp.mat33d, half: wp.vec3d):
+    """Signed distance (m) and outward normal of one oriented box."""
+    p = wp.transpose(rot) * (p_world - center)
+    q = wp.vec3d(wp.abs(p[0]) - half[0], wp.abs(p[1]) - half[1], wp.abs(p[2]) - half[2])
+    zero = wp.float64(0.0)
+    qo = wp.vec3d(wp.max(q[0], zero), wp.max(q[1], zero), wp.max(q[2], zero))
+    outside = wp.length(qo)
+    inside = wp.min(wp.max(q[0], wp.max(q[1], q[2])), zero)
+    n_local = wp.vec3d(zero, zero, zero)
+    if outside > zero:
+        n_local = wp.vec3d(qo[0] * wp.sign(p[0]), qo[1] * wp.sign(p[1]), qo[2] * wp.sign(p[2])) / outside
+    else:
+        axis = int(0)
+        if q[1] > q[axis]:
+            axis = 1
+        if q[2] > q[axis]:
+            axis = 2
+        s = wp.float64(1.0)
+        if p[axis] < zero:
+            s = wp.float64(-1.0)
+        n_local[axis] = s
+    return outside + inside, rot * n_local
+
+
+@wp.kernel
+def _scene_sdf_kernel(
+    points: wp.array(dtype=wp.vec3d),
+    has_ground: int,
+    box_centers: wp.array(dtype=wp.vec3d),
+    box_rotations: wp.array(dtype=wp.mat33d),
+    box_half_extents: wp.array(dtype=wp.vec3d),
+    far_m: wp.float64,
+    sdf_out: wp.array(dtype=wp.float64),
+    normal_out: wp.array(dtype=wp.vec3d),
+):
+    tid = wp.tid()
+    p = points[tid]
+    best = far_m
+    best_n = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
+    if has_ground != 0:
+        best = p[2]
+    for b in range(box_centers.shape[0]):
+        d, n = _box_sdf(p, box_centers[b], box_rotations[b], box_half_extents[b])
+        if d < best:
+            best = d
+            best_n = n
+    sdf_out[tid] = best
+    normal_out[tid] = best_n
+
+
+@dataclass(frozen=True)
+class StaticScene:
+    """Ground plane z = 0 (optional) plus oriented boxes; the union is the solid static geometry."""
+
+    ground: bool = True
+    boxes: tuple[StaticBox, ...] = field(default_factory=tuple)
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
+
+    def _box_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if not self.boxes:
+            return np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3))
+        centers = np.array([b.center_m for b in self.boxes], dtype=np.float64)
+        rots = np.stack([b.rotation for b in self.boxes])
+        halves = np.array([b.half_extents_m for b in self.boxes], dtype=np.float64)
+        return centers, rots, halves
+
+    def query(
+        self, points_m: np.ndarray | torch.Tensor, device: str = "cpu"
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance (n,) m and outward unit normal (n,3) at ``points_m`` (n,3), via a warp kernel.
+
+        The box arrays are uploaded once per device and cached on the scene (the scene is immutable).
+        """
+        pts = _as_points(points_m)
+        n = pts.shape[0]
+        if n == 0:
+            return np.zeros(0), np.zeros((0, 3))
+        boxes = self._device_boxes(device)
+        sdf = wp.empty(n, dtype=wp.float64, device=device)
+        normals = wp.empty(n, dtype=wp.vec3d, device=device)
+        wp.launch(
+            _scene_sdf_kernel,
+            dim=n,
+            inputs=[
+                wp.array(pts, dtype=wp.vec3d, device=device, copy=False),
+                int(self.ground),
+                *boxes,
+                wp.float64(_FAR_M),
+            ],
+            outputs=[sdf, normals],
+            device=device,
+        )
+        return sdf.numpy(), normals.numpy()
+
+    def _device_boxes(self, device: str) -> tuple[wp.array, wp.array, wp.array]:
+        cached = self._cache.get(device)
+        if cached is None:
+            centers, rots, halves = self._box_arrays()
+            cached = (
+                wp.array(centers, dtype=wp.vec3d, device=device),
+                wp.array(rots, dtype=wp.mat33d, device=device),
+                wp.array(halves, dtype=wp.vec3d, device=device),
+            )
+            self._cache[device] = cached
+        return cached
+
+    def query_torch(self, points_m: np.ndarray | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Batched-torch reference of :meth:`query` (float64)."""
+        p = torch.as_tensor(_as_points(points_m))
+        n = p.shape[0]
+        best = torch.full((n,), _FAR_M, dtype=torch.float64)
+        best_n = torch.zeros((n, 3), dtype=torch.float64)
+        best_n[:, 2] = 1.0
+        if self.ground:
+            best = p[:, 2].clone()
+        for box in self.boxes:  # loop over boxes, batched over points
+            rot = torch.as_tensor(box.rotation)
+            half = torch.as_tensor(np.asarray(box.half_extents_m, dtype=np.float64))
+            local = (p - torch.as_tensor(np.asarray(box.center_m, dtype=np.float64))) @ rot
+            q = local.abs() - half
+            qo = q.clamp(min=0.0)
+            outside = qo.norm(dim=1)
+            inside = q.max(dim=1).values.clamp(max=0.0)
+            n_out = qo * torch.sign(local) / outside.clamp(min=1e-300)[:, None]
+            axis = q.argmax(dim=1)
+            n_in = torch.zeros_like(local)
+            n_in[torch.arange(n), axis] = torch.where(local[torch.arange(n), axis] < 0, -1.0, 1.0).double()
+            n_local = torch.where((outside > 0)[:, None], n_out, n_in)
+            d = outside + inside
+            closer = d < best
+            best = torch.where(closer, d, best)
+            best_n = torch.where(closer[:, None], n_local @ rot.T, best_n)
+        return best, best_n
+
+
+def _as_points(points_m: np.ndarray | torch.Tensor) -> np.ndarray:
+    if isinstance(points_m, torch.Tensor):
+        points_m = points_m.detach().cpu().numpy()
+    pts = np.ascontiguousarray(points_m, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points_m must have shape (n, 3), got {pts.shape}")
+    return pts
