@@ -10,7 +10,8 @@ Steps (each reads the same :class:`~data_gen.scene.Scenario`, none changes it):
 3. **Render** (:func:`render_sequence`): per frame, every surface Gaussian is
    moved through the skinning map (centre) and the local deformation gradient
    (covariance ``F Σ Fᵀ``); RGB is alpha-composited, labels come from the
-   nearest covering Gaussian (binarized opacity) and each Gaussian carries
+   nearest covering Gaussian (binarized opacity), depth is where the pixel ray
+   meets that splat (its density peak), and each Gaussian carries
    the values of its nearest cubature point (contact, stress) and of its
    object (id, material, class, mass x g). Scene flow is the displacement of
    that Gaussian to the next frame; optical flow is its projection (via
@@ -239,7 +240,7 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     scales = np.concatenate([scene_g.scales_m, np.zeros((n_all - n_scene, 3), np.float32)])
     rotations = np.concatenate([scene_g.rotations_wxyz, np.zeros((n_all - n_scene, 4), np.float32)])
     rgb_r = RgbRasterizer(h, w, settings.device, settings.num_threads)
-    lab_r = LabelRasterizer(h, w, settings.device, settings.num_threads)
+    lab_r = LabelRasterizer(h, w, settings.device, settings.num_threads, depth_mode="surface")
     index_all = np.zeros((t_count, h, w), np.int64)
     object_ids = [o.object_id for o in objects]
     for t in range(t_count):  # loop over frames
