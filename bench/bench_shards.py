@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))  # the test fixture lives in tests/, not in the pa
 
 from newtphys import schema  # noqa: E402
 from newtphys.dataset import ClipDataset  # noqa: E402
-from newtphys.shards import ShardReader  # noqa: E402
+from newtphys.shards import COMPRESSION_LEVEL, ShardReader  # noqa: E402
 from tests.fixtures.synthetic_scene import write_fixture_split  # noqa: E402
 
 CLIP = 4
@@ -50,7 +50,7 @@ def main() -> None:
     rows: list[tuple[str, float, int]] = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        for codec, level in (("gzip", 4), ("gzip", 1), ("lzf", None), (None, None)):
+        for codec, level in (("gzip", 1), ("gzip", 4), ("lzf", None), (None, None)):
             label = f"{codec or 'none'}{'-' + str(level) if level else ''}"
             kwargs = {"compression": codec} | ({"compression_level": level} if level else {})
             split = write_fixture_split(tmp / label, "train", num_sequences=2, sequences_per_shard=2,
@@ -66,7 +66,7 @@ def main() -> None:
                     reader.read(sid, n, s, s + CLIP)
 
             rows.append((f"hdf5 {label}, all 13 maps", _time(read_h5, reps), shard.stat().st_size))
-            if codec == "gzip" and level == 4:
+            if codec == "gzip" and level == COMPRESSION_LEVEL:
                 ds = ClipDataset(split, clip_length=CLIP)
                 idx = iter(rng.integers(0, len(ds), size=10_000))
                 item_time = _time(lambda: ds[int(next(idx))], reps)
@@ -87,14 +87,14 @@ def main() -> None:
                 raw_size = sum(a.nbytes for a in seq.maps.values()) * 2
                 bytes_clip = sum(a[:CLIP].nbytes for a in seq.maps.values())
         rows.append(("uncompressed .npy (mmap), all 13 maps", npy_time, raw_size))
-        rows.append(("ClipDataset item, gzip-4 (rgb x4 + 3 targets)", item_time, 0))
+        rows.append((f"ClipDataset item, gzip-{COMPRESSION_LEVEL} (rgb x4 + 3 targets)", item_time, 0))
     base = rows[0][1]
     print(f"clip of {CLIP} frames at 128x128 ({bytes_clip / 2**20:.2f} MiB decoded, all maps); {reps} reads each; "
           f"shard = 2 sequences x {frames} frames")
     print(f"{'reader':<48} {'ms / clip':>10} {'shard MiB':>10} {'x npy time':>11}")
     for name, t, size in rows:
         print(f"{name:<48} {t * 1e3:>10.2f} {size / 2**20 if size else float('nan'):>10.2f} {t / npy_time:>11.1f}")
-    print(f"default (gzip-4) vs npy: {base / npy_time:.1f}x slower, {raw_size / rows[0][2]:.1f}x smaller on disk")
+    print(f"default (gzip-{COMPRESSION_LEVEL}) vs npy: {base / npy_time:.1f}x slower, {raw_size / rows[0][2]:.1f}x smaller on disk")
     out = ROOT / "bench" / "results" / "shards.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({

@@ -22,7 +22,7 @@ from data_gen.assets.ply_io import export_splats
 from data_gen.generator import GenerationConfig
 from data_gen.pipeline import SkinnedSurface, build_objects, scene_layout, simulate
 from data_gen.scene import sample_scenario
-from data_gen.sim.world import torch_threads
+from data_gen.sim.threads import torch_threads
 from newtphys import schema
 from newtphys.shards import ShardReader
 

@@ -52,7 +52,8 @@ from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_fr
 from data_gen.sim.solver import SimulationError
 from data_gen.sim.static_scene import StaticBox
 from data_gen.sim.static_scene import StaticScene as SimStaticScene
-from data_gen.sim.world import SimObjectSpec, Simulator, torch_threads
+from data_gen.sim.threads import torch_threads
+from data_gen.sim.world import SimObjectSpec, Simulator
 from newtphys import geometry, schema
 from newtphys.consistency import optical_flow_from_scene_flow
 from newtphys.shards import SequenceArrays

@@ -33,7 +33,6 @@ with the same torch build and thread count the weights are bit-identical.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import json
@@ -47,6 +46,7 @@ from pathlib import Path
 import torch
 
 from data_gen.sim.material import energy_density, lame_parameters
+from data_gen.sim.threads import torch_threads
 
 logger = logging.getLogger(__name__)
 
@@ -415,11 +415,11 @@ def _optimise(
 ) -> SkinningBasis:
     """Adam on mean energy density (orthonormalised batch) + w_orth * MSE(W^T W / n, I).
 
-    Runs in float32 on one CPU thread (see ``_single_thread``); the finished
+    Runs in float32 on one CPU thread (see ``data_gen.sim.threads``); the finished
     MLP is converted to float64 and its columns are made exactly orthonormal
     on all rest points by folding a triangular mix into the output layer.
     """
-    with _single_thread():
+    with torch_threads(1):
         gen = torch.Generator().manual_seed(int(seed))
         center, half, longest = normalised_frame(x)
         y64 = (x - center) / longest  # uniform scale: the shape is preserved
@@ -470,24 +470,6 @@ def _optimise(
                 weights = torch.cat((torch.ones(n, 1, dtype=_DTYPE), w_free), dim=1)
                 _fold_mix_into_last_layer(mlp, _orthonormalising_mix(weights.T @ weights / n, ridge))
     return SkinningBasis(num_handles, mlp, center, half)
-
-
-@contextlib.contextmanager
-def _single_thread():
-    """Run torch on one intra-op thread, restoring the caller's setting afterwards.
-
-    The training batches are small (~1e3 x 64), so threading gains little,
-    and on a shared, oversubscribed CPU intra-op threads slowed a step by ~10x
-    (measured: 1.0 s vs 0.11 s). One thread also makes the result independent
-    of the caller's thread count. Not safe against other Python threads using
-    torch at the same time.
-    """
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _orthonormalising_mix(gram: torch.Tensor, ridge: float = 1e-6) -> torch.Tensor:

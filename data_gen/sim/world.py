@@ -10,8 +10,6 @@ the reduced state: handle 0 starts at ``T_0 = [R - I | p]`` so ``x = R x0 + p`` 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +30,7 @@ from data_gen.sim.skinning import (
 )
 from data_gen.sim.solver import ImplicitEulerSolver, SimBody, SimulationError
 from data_gen.sim.static_scene import StaticScene, quat_wxyz_to_matrix
+from data_gen.sim.threads import torch_threads
 
 __all__ = ["SimObjectSpec", "Simulator", "SimulationError"]
 
@@ -302,19 +301,6 @@ class Simulator:
             solver.energies(),
         )
         solver.timings["recording"] = solver.timings.get("recording", 0.0) + time.perf_counter() - t0
-
-
-@contextmanager
-def torch_threads(num_threads: int) -> Iterator[None]:
-    """Temporarily set torch's intra-op thread count."""
-    if num_threads < 1:
-        raise ValueError(f"num_threads={num_threads!r} must be >= 1")
-    previous = torch.get_num_threads()
-    torch.set_num_threads(num_threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _validate_spec(spec: SimObjectSpec, gravity: np.ndarray) -> None:
