@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from data_gen.sim.contact_points import box_surface, sphere_surface
 from data_gen.sim.material import Material
 from data_gen.sim.skinning import SkinningTrainingSettings
 from data_gen.sim.static_scene import StaticBox, StaticScene
 from data_gen.sim.world import SimObjectSpec
 
 QUICK_TRAINING = SkinningTrainingSettings(steps=100, points_per_step=256, hidden_layers=2, width=32)
+SURFACE_SAMPLES = 4000  # analytic surface samples per object (contact spheres are picked among them)
 
 
 def box_points(half_extents_m, num_points: int, seed: int) -> np.ndarray:
@@ -54,6 +56,7 @@ def _box(
         velocity_m_s=vel,
         angular_velocity_rad_s=spin,
         skinning_settings=training,
+        surface=box_surface(half, SURFACE_SAMPLES, seed),
     )
 
 
@@ -69,6 +72,7 @@ def _ball(
         position_m=pos,
         velocity_m_s=vel,
         skinning_settings=training,
+        surface=sphere_surface(radius, SURFACE_SAMPLES, seed),
     )
 
 

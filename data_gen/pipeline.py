@@ -45,6 +45,7 @@ from data_gen.render.gaussians import Gaussians
 from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.scene import Scenario
+from data_gen.sim.contact_points import SurfaceSamples
 from data_gen.sim.material import Material
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.recording import SimulationResult
@@ -91,6 +92,8 @@ class RenderSettings:
     """Surface Gaussians per object."""
     interior_points: int = 1500
     """Simulation particles per object (volume and mass sampling)."""
+    contact_surface_samples: int = 4000
+    """Surface samples per object among which the preset's contact spheres are picked."""
     scene_spacing_m: float = 0.025
     """Grid spacing of the static scene's Gaussians."""
     min_visible_objects: int = 1
@@ -109,6 +112,7 @@ class SceneObject:
     surface: SurfaceGaussians
     interior_points_m: np.ndarray
     volume_m3: float
+    contact_surface: SurfaceSamples
     material: Material
     material_id: int
     semantic_id: int
@@ -138,8 +142,13 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
         interior = asset.interior_points(spacing, rng)
         if len(interior) < 8:
             raise SequenceRejected("degenerate_object", f"object {p.object_id} ({p.asset}) has {len(interior)} interior points")
+        # contact spheres touch this surface from inside (exact resting heights, see data_gen.sim.contact_points)
+        contact_surface = SurfaceSamples.from_mesh(
+            asset.to_mesh(), settings.contact_surface_samples, seed=p.color_seed, sdf=asset.shape.sdf
+        )
         out.append(SceneObject(
             object_id=p.object_id, asset=asset, surface=surface, interior_points_m=interior, volume_m3=volume,
+            contact_surface=contact_surface,
             material=Material(p.young_modulus_pa, p.poisson_ratio, p.density_kg_m3),
             material_id=mat_ids[p.material], semantic_id=asset.semantic_id,
         ))
@@ -153,6 +162,7 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
             name=f"{o.object_id}:{p.asset}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
             material=o.material, position_m=p.position_m, orientation_wxyz=p.orientation_wxyz,
             velocity_m_s=p.velocity_m_s, angular_velocity_rad_s=p.angular_velocity_rad_s,
+            surface=o.contact_surface,
         )
         for o, p in zip(objects, scenario.objects)
     ]
@@ -163,7 +173,7 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
     except SimulationError as e:
         raise SequenceRejected("simulation_failed", str(e)) from None
     for track in result.objects:
-        pts = track.cubature_positions_m
+        pts = track.contact_positions_m
         if not np.isfinite(pts).all():
             raise SequenceRejected("nan", f"object {track.object_id} has non-finite positions")
         lowest = float(pts[..., 2].min())

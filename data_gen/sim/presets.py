@@ -14,12 +14,14 @@ PRESET_DIR = Path(__file__).resolve().parents[2] / "conf" / "quality"
 class QualityPreset:
     """Numerical settings of one quality level.
 
-    ``dt_s = 1 / (fps * substeps_per_frame)``; contact stiffness per cubature sphere is
-    ``contact_stiffness_factor * object_mass_kg / dt_s**2`` (N/m).
+    ``dt_s = 1 / (fps * substeps_per_frame)``; contact stiffness per contact sphere is
+    ``contact_stiffness_factor * object_mass_kg / dt_s**2`` (N/m).  ``num_contact_points`` is the
+    number of surface contact spheres per object (used when the object comes with surface samples).
     """
 
     name: str
     num_cubature_points: int
+    num_contact_points: int
     max_handles: int
     substeps_per_frame: int
     max_contact_substeps: int
@@ -35,6 +37,7 @@ class QualityPreset:
     def __post_init__(self) -> None:
         positive_ints = (
             "num_cubature_points",
+            "num_contact_points",
             "max_handles",
             "substeps_per_frame",
             "max_contact_substeps",

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from data_gen.sim.contact_points import ContactPoints
 from data_gen.sim.reduced import DTYPE, ReducedObject, deform, q_to_z
 from data_gen.sim.skinning import SkinningBasis
 
@@ -23,9 +24,10 @@ class ObjectTrack:
         object_id, name: 1-based id and name.
         basis: skinning basis; with ``handle_transforms`` it deforms any rest point (see :meth:`deform`).
         points_rest_m: (n,3) cubature rest positions in the object frame; volumes_m3, masses_kg: (n,).
-        contact_radius_m: (n,) contact sphere radii.
+        contact_points_rest_m: (k,3) contact sphere centres in the object frame (surface spheres, or the
+            cubature points when the object had no surface samples); contact_radius_m: (k,) their radii.
         handle_transforms: (T, 12H) reduced state z (row-major 3x4 delta affine per handle).
-        cubature_positions_m: (T,n,3) world positions.
+        cubature_positions_m: (T,n,3) world positions; contact_positions_m: (T,k,3) sphere centres.
         gravity_force_n: (T,n,3) m_i g; contact_force_n: (T,n,3) total contact force (normal + friction).
         contact_partner: (T,n) int64 id of the dominant contact partner (0 scene, -1 none).
         hydrostatic_stress_pa: (T,n) tr(sigma)/3, negative = compression.  det_f: (T,n).
@@ -39,9 +41,11 @@ class ObjectTrack:
     points_rest_m: np.ndarray
     volumes_m3: np.ndarray
     masses_kg: np.ndarray
+    contact_points_rest_m: np.ndarray
     contact_radius_m: np.ndarray
     handle_transforms: np.ndarray
     cubature_positions_m: np.ndarray
+    contact_positions_m: np.ndarray
     gravity_force_n: np.ndarray
     contact_force_n: np.ndarray
     contact_partner: np.ndarray
@@ -219,10 +223,10 @@ class FrameRecorder:
         names: list[str],
         ids: list[int],
         models: list[ReducedObject],
-        radii: list[np.ndarray],
+        contacts: list[ContactPoints],
         gravity_m_s2: np.ndarray,
     ) -> None:
-        self.names, self.ids, self.models, self.radii = names, ids, models, radii
+        self.names, self.ids, self.models, self.contacts = names, ids, models, contacts
         self.gravity = torch.as_tensor(np.asarray(gravity_m_s2, dtype=np.float64))
         self.frames: list[list[dict]] = [[] for _ in models]
         self.energies: dict[str, list[float]] = {"kinetic": [], "elastic": [], "contact": [], "gravity": []}
@@ -239,6 +243,7 @@ class FrameRecorder:
         for k, model in enumerate(self.models):
             self.frames[k].append(
                 _object_frame(model, qs[k], qdots[k], forces[k], partners[k], asleep[k], self.gravity)
+                | {"contact_positions_m": self.contacts[k].positions(qs[k]).numpy()}
             )
         for key, value in energies.items():
             self.energies[key].append(value)
@@ -256,7 +261,8 @@ class FrameRecorder:
                     points_rest_m=model.points_rest.numpy(),
                     volumes_m3=model.volumes_m3.numpy(),
                     masses_kg=model.masses_kg.numpy(),
-                    contact_radius_m=self.radii[k],
+                    contact_points_rest_m=self.contacts[k].rest_m.numpy(),
+                    contact_radius_m=self.contacts[k].radius_m.numpy(),
                     **stack,
                 )
             )

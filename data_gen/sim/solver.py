@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from data_gen.sim.contact import PairFinder, friction_terms, pair_contact, penalty_from_sdf, static_contact
+from data_gen.sim.contact_points import ContactPoints
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.reduced import DTYPE, ReducedObject, scatter_point_gradient, scatter_point_hessian
 from data_gen.sim.static_scene import StaticScene
@@ -38,6 +39,9 @@ NO_PARTNER = -1  # contact partner id of a point without contact (0 is the stati
 # its partner's layer of spheres; static boxes are solids (no thin shells), so 2 radii is safe there.
 PAIR_REACH_RADII = 1.0
 SCENE_REACH_RADII = 2.0
+# The preset's ``max_contact_substeps`` is a cost cap; a point so fast that the cap would let it jump
+# past its reach gets up to this many sub-steps instead (counted as ``substep_cap_raised``).
+HARD_SUBSTEP_LIMIT = 64
 _ARMIJO_C = 1e-4
 
 
@@ -47,13 +51,14 @@ class SimulationError(RuntimeError):
 
 @dataclass
 class SimBody:
-    """One simulated object: its reduced model, contact data and mutable state.
+    """One simulated object: its reduced model, contact spheres and mutable state.
 
     Attributes:
         object_id: 1-based id (0 is the static scene).
         name: object name used in errors.
         model: reduced model at the cubature points.
-        radius_m: (n,) contact sphere radius per cubature point, m.
+        contact: contact spheres (k of them) moved by the same basis; per-point contact arrays below
+            are per sphere.
         friction_coefficient: Coulomb coefficient (dimensionless, >= 0).
         q, qdot: reduced state (q-ordering) and its rate (1/s).
     """
@@ -61,20 +66,20 @@ class SimBody:
     object_id: int
     name: str
     model: ReducedObject
-    radius_m: torch.Tensor
+    contact: ContactPoints
     friction_coefficient: float
     q: torch.Tensor
     qdot: torch.Tensor
     asleep: bool = False
     slow_steps: int = 0
-    contact_force_n: torch.Tensor = field(init=False)  # (n,3) N, this step
-    contact_partner: torch.Tensor = field(init=False)  # (n,) dominant partner id, NO_PARTNER if none
-    static_force_n: torch.Tensor = field(init=False)  # (n,3) N from the scene (held while asleep)
-    partner_strength_n: torch.Tensor = field(init=False)  # (n,) |force| of the dominant partner
+    contact_force_n: torch.Tensor = field(init=False)  # (k,3) N per sphere, this step
+    contact_partner: torch.Tensor = field(init=False)  # (k,) dominant partner id, NO_PARTNER if none
+    static_force_n: torch.Tensor = field(init=False)  # (k,3) N from the scene (held while asleep)
+    partner_strength_n: torch.Tensor = field(init=False)  # (k,) |force| of the dominant partner
     static_summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
-        n = self.model.num_points
+        n = self.contact.num_points
         self.contact_force_n = torch.zeros(n, 3, dtype=DTYPE)
         self.static_force_n = torch.zeros(n, 3, dtype=DTYPE)
         self.contact_partner = torch.full((n,), NO_PARTNER, dtype=torch.int64)
@@ -85,6 +90,21 @@ class SimBody:
         self.contact_force_n = self.static_force_n.clone()
         self.partner_strength_n = self.static_force_n.norm(dim=1)
         self.contact_partner = torch.where(self.partner_strength_n > 0, 0, NO_PARTNER)
+
+    @property
+    def radius_m(self) -> torch.Tensor:
+        """(k,) contact sphere radii, m."""
+        return self.contact.radius_m
+
+    def contact_positions(self, q: torch.Tensor | None = None) -> torch.Tensor:
+        """(k,3) world sphere centres, m, of state q (default: the current state)."""
+        return self.contact.positions(self.q if q is None else q)
+
+    def cubature_contact(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """This step's contact force (n,3) N and dominant partner (n,) per cubature point."""
+        return self.contact.to_cubature(
+            self.contact_force_n, self.contact_partner, self.partner_strength_n, NO_PARTNER
+        )
 
 
 @dataclass
@@ -153,9 +173,9 @@ class ImplicitEulerSolver:
         self.preset = preset
         self.dt = float(dt_s)
         self.finder = PairFinder(device=device)
-        self.offsets = np.cumsum([0] + [b.model.num_points for b in bodies])
+        self.offsets = np.cumsum([0] + [b.contact.num_points for b in bodies])
         self.point_object = (
-            np.concatenate([np.full(b.model.num_points, k) for k, b in enumerate(bodies)])
+            np.concatenate([np.full(b.contact.num_points, k) for k, b in enumerate(bodies)])
             if bodies
             else np.zeros(0, dtype=np.int64)
         )
@@ -171,13 +191,14 @@ class ImplicitEulerSolver:
                 "line_search_failures",
                 "island_solves",
                 "island_object_solves",
+                "substep_cap_raised",
             ),
             0,
         )
 
     # ------------------------------------------------------------------ public
     def stiffness(self, k: int) -> float:
-        """Scene contact stiffness of object k per cubature sphere: factor * mass / h^2 (N/m)."""
+        """Scene contact stiffness of object k per contact sphere: factor * mass / h^2 (N/m)."""
         return self.preset.contact_stiffness_factor * self.bodies[k].model.mass_kg / self.h**2
 
     def step(self) -> StepStats:
@@ -185,16 +206,16 @@ class ImplicitEulerSolver:
 
         Contact candidates are found once per step (hash grid, margin covering the step's motion) and
         split the awake objects into islands.  Each island near contact is split into sub-steps so that
-        none of its cubature points moves more than ``PAIR_REACH_RADII`` contact radii per sub-step (at
-        most ``preset.max_contact_substeps``): penalty contact cannot stop a sphere that jumps past its
+        none of its contact spheres moves more than ``PAIR_REACH_RADII`` contact radii per sub-step (at
+        most ``preset.max_contact_substeps`` unless needed): penalty contact cannot stop a sphere that jumps past its
         partner within one step.  Islands in free flight take the full step.
         """
         stats = StepStats()
         self.h = self.dt
         t0 = time.perf_counter()
-        positions = [b.model.positions(b.q) for b in self.bodies]
+        positions = [b.contact_positions() for b in self.bodies]
         speeds = [
-            float(b.model.point_velocities(b.qdot).norm(dim=1).max()) if not b.asleep else 0.0
+            float(b.contact.velocities(b.qdot).norm(dim=1).max()) if not b.asleep else 0.0
             for b in self.bodies
         ]
         pairs = self._candidate_pairs(positions, speeds)
@@ -218,7 +239,7 @@ class ImplicitEulerSolver:
                 pair_set = self._island_pairs(island, pairs, positions)
                 stats.newton_iterations += self._solve_island(island, pair_set, positions, self.h)
                 for k in island:
-                    positions[k] = self.bodies[k].model.positions(self.bodies[k].q)
+                    positions[k] = self.bodies[k].contact_positions()
                 t1 = time.perf_counter()
                 self._record_island_forces(island, pair_set, stats, supported)
                 self.timings["newton"] += t1 - t0
@@ -231,25 +252,33 @@ class ImplicitEulerSolver:
 
     def _island_substeps(self, island: list[int], positions: list[torch.Tensor], pairs: np.ndarray) -> int:
         """Sub-steps so that no point moves more than PAIR_REACH_RADII radii (near another object) or
-        SCENE_REACH_RADII radii (near the static scene only) per sub-step."""
+        SCENE_REACH_RADII radii (near the static scene only) per sub-step.
+
+        The radius is the object's median contact radius (tiny spheres fitted into edges are covered by
+        their neighbours).  Usually at most ``preset.max_contact_substeps``; beyond that cap only when
+        the reach demands it, up to ``HARD_SUBSTEP_LIMIT``."""
         paired = set(self.point_object[pairs].ravel().tolist()) if len(pairs) else set()
         worst = 0.0
         for k in island:  # loop over objects
             b = self.bodies[k]
-            reach = float(b.model.point_velocities(b.qdot).norm(dim=1).max()) * self.dt
-            r_min = float(b.radius_m.min())
+            reach = float(b.contact.velocities(b.qdot).norm(dim=1).max()) * self.dt
+            r_min = float(b.radius_m.median())
             if k in paired:
                 worst = max(worst, reach / (PAIR_REACH_RADII * r_min))
                 continue
             sdf, _ = self.scene.query(positions[k])
             if bool(((sdf - b.radius_m.numpy()) < 2.0 * reach).any()):
                 worst = max(worst, reach / (SCENE_REACH_RADII * r_min))
-        return int(min(self.preset.max_contact_substeps, max(1, np.ceil(worst))))
+        needed = max(1, int(np.ceil(worst)))
+        if needed <= self.preset.max_contact_substeps:
+            return needed
+        self.counters["substep_cap_raised"] += 1
+        return min(HARD_SUBSTEP_LIMIT, needed)
 
     def refresh_forces(self) -> StepStats:
         """Contact forces of the current state without stepping (used for the initial frame)."""
         stats = StepStats()
-        positions = [b.model.positions(b.q) for b in self.bodies]
+        positions = [b.contact_positions() for b in self.bodies]
         pairs = self._candidate_pairs(positions, [0.0] * len(self.bodies))
         supported = np.zeros(len(self.bodies), dtype=bool)
         for b in self.bodies:
@@ -263,7 +292,7 @@ class ImplicitEulerSolver:
         kin = sum(b.model.kinetic_energy(b.qdot) for b in self.bodies)
         ela = sum(b.model.elastic_energy(b.q) for b in self.bodies)
         grav = sum(b.model.gravity_energy(b.q, self.gravity) for b in self.bodies)
-        positions = [b.model.positions(b.q) for b in self.bodies]
+        positions = [b.contact_positions() for b in self.bodies]
         con = 0.0
         for k, b in enumerate(self.bodies):
             pc, _, _ = static_contact(positions[k], b.radius_m, _scalar(self.stiffness(k)), self.scene)
@@ -324,7 +353,7 @@ class ImplicitEulerSolver:
         for island in islands:
             for k in island:
                 b = self.bodies[k]
-                speed = float(b.model.point_velocities(b.qdot).norm(dim=1).max())
+                speed = float(b.contact.velocities(b.qdot).norm(dim=1).max())
                 if threshold > 0 and speed < threshold and supported[k]:
                     b.slow_steps += 1
                 else:
@@ -374,7 +403,7 @@ class ImplicitEulerSolver:
         self.counters["island_object_solves"] += len(island)
         sizes = [b.model.num_dofs for b in bodies]
         offs = np.cumsum([0] + sizes)
-        point_offs = np.cumsum([0] + [b.model.num_points for b in bodies])
+        point_offs = np.cumsum([0] + [b.contact.num_points for b in bodies])
         q_n = torch.cat([b.q for b in bodies])
         q_pred = torch.cat([b.q + h * b.qdot for b in bodies])
         mass = torch.block_diag(*[b.model.mass_matrix for b in bodies])
@@ -407,7 +436,7 @@ class ImplicitEulerSolver:
             grad = m_dq.clone() if derivs else None
             hess = mass.clone() if derivs else None
             qs = split(q)
-            xs = {k: bodies[a].model.positions(qs[a]) for a, k in enumerate(island)}
+            xs = {k: bodies[a].contact_positions(qs[a]) for a, k in enumerate(island)}
             sdf_all, normal_all = self.scene.query(torch.cat(list(xs.values())))  # one query per island
             sdf_all, normal_all = torch.from_numpy(sdf_all), torch.from_numpy(normal_all)
             for a, b in enumerate(bodies):
@@ -433,8 +462,8 @@ class ImplicitEulerSolver:
                     for t in terms:
                         act = t.hess_x.abs().sum(dim=(1, 2)) > 0
                         if bool(act.any()):
-                            g = g + scatter_point_gradient(model.b[act], t.grad_x[act])
-                            kmat = kmat + scatter_point_hessian(model.b[act], t.hess_x[act])
+                            g = g + scatter_point_gradient(b.contact.b[act], t.grad_x[act])
+                            kmat = kmat + scatter_point_hessian(b.contact.b[act], t.hess_x[act])
                     grad[sl] += h * h * g
                     hess[sl, sl] += h * h * kmat
             if len(ps.obj_i):
@@ -523,8 +552,8 @@ class ImplicitEulerSolver:
         obj_pairs = np.unique(np.stack([ps.obj_i[active.numpy()], ps.obj_j[active.numpy()]], 1), axis=0)
         for a, c in obj_pairs:  # loop over object pairs
             sel = torch.from_numpy((ps.obj_i == a) & (ps.obj_j == c)) & active
-            bi = self.bodies[a].model.b[torch.from_numpy(ps.loc_i)[sel]]
-            bj = self.bodies[c].model.b[torch.from_numpy(ps.loc_j)[sel]]
+            bi = self.bodies[a].contact.b[torch.from_numpy(ps.loc_i)[sel]]
+            bj = self.bodies[c].contact.b[torch.from_numpy(ps.loc_j)[sel]]
             gi, hp = g_i[sel], h_ij[sel]
             sa = slice(offs[local[a]], offs[local[a] + 1])
             grad[sa] += h2 * scatter_point_gradient(bi, gi)
@@ -540,7 +569,7 @@ class ImplicitEulerSolver:
 
     def _gather(self, ps: _PairSet, xs: dict) -> tuple[torch.Tensor, torch.Tensor]:
         """Positions of both sides of every pair: island objects from ``xs``, the others (asleep) frozen."""
-        x_all = torch.cat([xs[k] if k in xs else b.model.positions(b.q) for k, b in enumerate(self.bodies)])
+        x_all = torch.cat([xs[k] if k in xs else b.contact_positions() for k, b in enumerate(self.bodies)])
         return x_all[ps.global_i], x_all[ps.global_j]
 
     # ------------------------------------------------------------------ force recording
@@ -553,11 +582,11 @@ class ImplicitEulerSolver:
         xs = {}
         for k in island:
             b = self.bodies[k]
-            x = b.model.positions(b.q)
+            x = b.contact_positions()
             xs[k] = x
             pc, depth, normal = static_contact(x, b.radius_m, _scalar(self.stiffness(k)), self.scene)
             force = -pc.grad_x
-            x_start, lam0, n0 = b.model.positions(b.q - h * b.qdot), None, None
+            x_start, lam0, n0 = b.contact_positions(b.q - h * b.qdot), None, None
             if b.friction_coefficient > 0:
                 _, depth0, n0 = static_contact(x_start, b.radius_m, _scalar(self.stiffness(k)), self.scene)
                 lam0 = self.stiffness(k) * depth0.clamp(min=0.0)
@@ -670,7 +699,7 @@ class ImplicitEulerSolver:
 
 def _assign_partner(body: SimBody, local: torch.Tensor, magnitude: torch.Tensor, partner_id: int) -> None:
     """Points whose force from ``partner_id`` (N) exceeds their strongest contact so far take it as partner."""
-    best = torch.zeros(body.model.num_points, dtype=DTYPE)
+    best = torch.zeros(body.contact.num_points, dtype=DTYPE)
     best.scatter_reduce_(0, local, magnitude, reduce="amax", include_self=True)
     take = best > body.partner_strength_n
     body.contact_partner = torch.where(take, partner_id, body.contact_partner)

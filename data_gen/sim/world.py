@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from data_gen.sim.contact import PairFinder
+from data_gen.sim.contact_points import ContactPoints, SurfaceSamples, surface_spheres
 from data_gen.sim.cubature import sample_cubature
 from data_gen.sim.material import Material
 from data_gen.sim.presets import QualityPreset, load_preset
@@ -53,6 +54,9 @@ class SimObjectSpec:
         friction_coefficient: Coulomb coefficient (>= 0); pairs use the geometric mean.
         num_handles: handle count; None picks it from the stiffness (capped by the preset).
         skinning_settings: training settings; None uses the defaults with the preset's step count.
+        surface: samples of the object's surface (object frame); when given, contact uses
+            ``preset.num_contact_points`` spheres touching the surface from inside (exact resting
+            heights); None falls back to the cubature points as contact spheres (approximate).
     """
 
     name: str
@@ -66,6 +70,7 @@ class SimObjectSpec:
     friction_coefficient: float = 0.5
     num_handles: int | None = None
     skinning_settings: SkinningTrainingSettings | None = field(default=None)
+    surface: SurfaceSamples | None = field(default=None)
 
 
 @dataclass
@@ -73,7 +78,7 @@ class _Prepared:
     spec: SimObjectSpec
     basis: SkinningBasis
     model: ReducedObject
-    radius_m: np.ndarray
+    contact: ContactPoints
     q0: torch.Tensor
     qdot0: torch.Tensor
 
@@ -165,6 +170,11 @@ class Simulator:
         weights, grads = basis.evaluate(cub_pos)
         mu, lam = mat.lame_pa
         model = ReducedObject(cub_pos, cub_vol, mat.density_kg_m3, weights, grads, mu, lam)
+        if spec.surface is None:
+            contact = ContactPoints.build(cub_pos, radius, weights, cub_pos)
+        else:
+            centres, radii = surface_spheres(spec.surface, self.preset.num_contact_points, seed)
+            contact = ContactPoints.build(centres, radii, basis.evaluate(torch.from_numpy(centres))[0], cub_pos)
         omega = np.asarray(spec.angular_velocity_rad_s, dtype=np.float64)
         vel = np.asarray(spec.velocity_m_s, dtype=np.float64)
         com0 = model.com_rest_m.numpy()
@@ -174,13 +184,13 @@ class Simulator:
         zdot0 = torch.zeros(12 * num_h, dtype=DTYPE)
         lin = vel - skew @ rot @ com0
         zdot0[:12] = torch.from_numpy(np.concatenate([skew @ rot, lin[:, None]], 1).reshape(-1))
-        return _Prepared(spec, basis, model, radius, z_to_q(z0), z_to_q(zdot0))
+        return _Prepared(spec, basis, model, contact, z_to_q(z0), z_to_q(zdot0))
 
     def _check_spawn_overlaps(self) -> None:
-        """Refuse cubature centres inside the scene or spheres overlapping by more than their mean radius."""
+        """Refuse contact sphere centres inside the scene or spheres overlapping by more than their mean radius."""
         xs = []
         for p in self.prepared:
-            x = p.model.positions(p.q0)
+            x = p.contact.positions(p.q0)
             sdf, _ = self.scene.query(x.numpy())
             if sdf.min() < 0:
                 raise ValueError(
@@ -192,12 +202,12 @@ class Simulator:
         pairs = PairFinder(self.device).find(
             np.concatenate(xs) if xs else np.zeros((0, 3)),
             np.concatenate([np.full(len(x), k) for k, x in enumerate(xs)]) if xs else np.zeros(0, dtype=int),
-            np.concatenate([p.radius_m for p in self.prepared]) if xs else np.zeros(0),
+            np.concatenate([p.contact.radius_m.numpy() for p in self.prepared]) if xs else np.zeros(0),
             margin_m=0.0,
         )
         if len(pairs):
             x_all = np.concatenate(xs)
-            r_all = np.concatenate([p.radius_m for p in self.prepared])
+            r_all = np.concatenate([p.contact.radius_m.numpy() for p in self.prepared])
             owner = np.concatenate([np.full(len(x), k) for k, x in enumerate(xs)])
             gap = np.linalg.norm(x_all[pairs[:, 0]] - x_all[pairs[:, 1]], axis=1) - 0.5 * r_all[pairs].sum(1)
             if gap.min() < 0:
@@ -220,7 +230,7 @@ class Simulator:
                 k + 1,
                 p.spec.name,
                 p.model,
-                torch.as_tensor(p.radius_m),
+                p.contact,
                 p.spec.friction_coefficient,
                 p.q0.clone(),
                 p.qdot0.clone(),
@@ -232,7 +242,7 @@ class Simulator:
             [b.name for b in bodies],
             [b.object_id for b in bodies],
             [b.model for b in bodies],
-            [p.radius_m for p in self.prepared],
+            [b.contact for b in bodies],
             self.gravity,
         )
         tracker = ContactEventTracker(dt, sub, gap_steps=sub)
@@ -292,11 +302,12 @@ class Simulator:
     def _record(recorder: FrameRecorder, solver: ImplicitEulerSolver) -> None:
         t0 = time.perf_counter()
         b = solver.bodies
+        per_cubature = [x.cubature_contact() for x in b]
         recorder.record(
             [x.q for x in b],
             [x.qdot for x in b],
-            [x.contact_force_n for x in b],
-            [x.contact_partner for x in b],
+            [f for f, _ in per_cubature],
+            [p for _, p in per_cubature],
             [x.asleep for x in b],
             solver.energies(),
         )
