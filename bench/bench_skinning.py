@@ -1,19 +1,25 @@
-"""Skinning training: seconds per trained basis, and subspace energy vs baselines.
+"""Skinning training: seconds per trained basis, and subspace energy vs baselines, before/after.
 
 On a 0.4 x 0.1 x 0.1 m beam (2000 uniform particles, nu = 0.3) this measures, in one run:
 
-* seconds per trained basis (no cache) vs number of handles H at the default
-  settings, and vs the number of Adam steps at H = 6;
-* the elastic energy per unit perturbation of each subspace
-  (``perturbation_energy``: columns orthonormalised, E = 1, lower is better) for
-  the learned basis, a linear-blend-skinning baseline (H Gaussian RBF weights
-  normalised to a partition of unity, centres spread by ``sample_cubature``,
-  width = their spacing) and the random-init MLP the training starts from.
+* seconds per trained basis (no cache, one torch thread) vs number of handles H at the
+  default settings, and vs the number of Adam steps at H = 6;
+* the elastic energy per unit perturbation of each subspace (E = 1, lower is better), both
+  the Monte-Carlo ``perturbation_energy`` (128 draws, the measure of the previous run) and
+  its closed form ``expected_perturbation_energy``, for: the shipped basis, a
+  linear-blend-skinning baseline (H Gaussian RBF weights normalised to a partition of
+  unity, centres from ``sample_cubature``, width (V / H)^(1/3); the same baseline as the
+  previous run), the training guard's own blend baseline (``blend_basis``) and the
+  random-init MLP;
+* the closed-form energy on 2000 held-out points of the same beam (generalisation: the
+  basis is evaluated, not retrained, there; the LBS keeps its centres);
+* the "before" columns: the numbers this bench measured with skinning format v3
+  (Monte-Carlo loss, Cholesky-mixed batches; bench/results/skinning.json of that run).
 
-Prints a table with the ratio learned / LBS, writes bench/results/skinning.json
-and bench/results/skinning.png.
+Prints a table with the ratio shipped / LBS (both measured in this run), writes
+bench/results/skinning.json and bench/results/skinning.png.
 
-    python bench/bench_skinning.py            # default settings (a few minutes on 2 cores)
+    python bench/bench_skinning.py            # default settings (~2 minutes)
     python bench/bench_skinning.py --quick    # 100 steps, fewer handle counts
 """
 
@@ -32,17 +38,28 @@ import torch
 
 from data_gen.sim.cubature import sample_cubature
 from data_gen.sim.skinning import (
+    BlendWeights,
     SkinningBasis,
     SkinningMLP,
     SkinningTrainingSettings,
+    blend_basis,
+    expected_perturbation_energy,
     normalised_frame,
     perturbation_energy,
     train_skinning_basis,
 )
+from data_gen.sim.threads import torch_threads
 
 RESULTS = Path(__file__).resolve().parent / "results"
 NU = 0.3
 BEAM_M = (0.4, 0.1, 0.1)
+MC_DRAWS = 128
+
+# Measured by this bench with skinning format v3 (500 steps at lr 1e-2, Monte-Carlo loss), same
+# beam, points and seeds: Monte-Carlo energy (128 draws) of the learned basis and seconds per basis.
+BEFORE_BY_HANDLES = {2: (15.62, 17.50), 4: (180.28, 15.03), 6: (626.42, 10.90), 8: (1290.56, 11.76),
+                     12: (3748.72, 8.91)}
+BEFORE_BY_STEPS = {100: (616.17, 1.45), 250: (656.29, 5.50), 500: (626.42, 10.67), 1000: (649.48, 20.94)}
 
 
 def beam_points(n: int, seed: int) -> torch.Tensor:
@@ -50,38 +67,36 @@ def beam_points(n: int, seed: int) -> torch.Tensor:
     return (torch.rand(n, 3, generator=g, dtype=torch.float64) - 0.5) * torch.tensor(BEAM_M, dtype=torch.float64)
 
 
-def lbs_basis(points: torch.Tensor, num_handles: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Linear blend skinning: H normalised Gaussian RBF weights; returns [1, w_1..w_{H-1}] and gradients (1/m).
-
-    The H blend weights sum to 1, so the constant column plus H - 1 of them span the same space.
-    """
+def lbs_weights(points: torch.Tensor, num_handles: int, seed: int) -> BlendWeights:
+    """Linear blend skinning: H normalised Gaussian RBFs at ``sample_cubature`` centres, width (V / H)^(1/3)."""
     volume = BEAM_M[0] * BEAM_M[1] * BEAM_M[2]
     centres = sample_cubature(points, num_handles, seed=seed, volume_m3=volume).positions  # (H, 3)
     sigma = (volume / num_handles) ** (1.0 / 3.0)
-    diff = points[:, None, :] - centres[None]  # (n, H, 3)
-    g = torch.exp(-0.5 * (diff**2).sum(-1) / sigma**2)  # (n, H)
-    dg = -g[:, :, None] * diff / sigma**2
-    total, dtotal = g.sum(1), dg.sum(1)
-    w = g / total[:, None]
-    dw = (dg * total[:, None, None] - g[:, :, None] * dtotal[:, None, :]) / total[:, None, None] ** 2
-    ones, zeros = torch.ones(len(points), 1, dtype=torch.float64), torch.zeros(len(points), 1, 3, dtype=torch.float64)
-    return torch.cat((ones, w[:, 1:]), 1), torch.cat((zeros, dw[:, 1:]), 1)
+    return BlendWeights(centres, sigma, torch.eye(num_handles, dtype=torch.float64))
 
 
 def random_init_basis(points: torch.Tensor, num_handles: int, settings: SkinningTrainingSettings, seed: int):
     center, half, _ = normalised_frame(points)
     mlp = SkinningMLP(num_handles - 1, settings.hidden_layers, settings.width)
     mlp.reset_parameters(torch.Generator().manual_seed(seed))
-    return SkinningBasis(num_handles, mlp, center, half).evaluate(points)
+    return SkinningBasis(num_handles, mlp, center, half)
 
 
-def train_timed(points, num_handles, settings, seed) -> tuple[float, float]:
+def energies(evaluate, x: torch.Tensor, x_test: torch.Tensor) -> dict[str, float]:
+    """Monte-Carlo and closed-form energy on the training points, closed form on held-out points."""
+    w, g = evaluate(x)
+    wt, gt = evaluate(x_test)
+    return {"mc": perturbation_energy(w, g, x, NU, num_perturbations=MC_DRAWS, seed=1),
+            "exact": expected_perturbation_energy(w, g, x, NU),
+            "exact_heldout": expected_perturbation_energy(wt, gt, x_test, NU)}
+
+
+def train_timed(points, num_handles, settings, seed) -> tuple[float, SkinningBasis]:
     with tempfile.TemporaryDirectory() as cache:  # a fresh cache: always a miss
         t0 = time.perf_counter()
         basis = train_skinning_basis(points, num_handles, NU, settings, seed=seed, cache_dir=cache)
         seconds = time.perf_counter() - t0
-    w, g = basis.evaluate(points)
-    return seconds, perturbation_energy(w, g, points, NU, num_perturbations=128, seed=1)
+    return seconds, basis
 
 
 def main() -> None:
@@ -92,35 +107,60 @@ def main() -> None:
     if args.quick:
         default = dataclasses.replace(default, steps=100)
     handle_counts = [2, 4, 6] if args.quick else [2, 4, 6, 8, 12]
-    step_counts = [25, 100] if args.quick else [100, 250, 500, 1000]
+    step_counts = [1, 25, 100] if args.quick else [1, 100, 250, 500, 1000]
     x = beam_points(2000, seed=0)
+    x_test = beam_points(2000, seed=99)
     rows = []
-    print(f"{'H':>3} {'steps':>6} {'s/basis':>8} {'E learned':>10} {'E LBS':>9} {'E rand':>9} {'learned/LBS':>12}")
-    for h in handle_counts:
-        seconds, e_learned = train_timed(x, h, default, seed=0)
-        w, g = lbs_basis(x, h, seed=0)
-        e_lbs = perturbation_energy(w, g, x, NU, num_perturbations=128, seed=1)
-        w0, g0 = random_init_basis(x, h, default, seed=0)
-        e_rand = perturbation_energy(w0, g0, x, NU, num_perturbations=128, seed=1)
-        rows.append({"num_handles": h, "steps": default.steps, "seconds": seconds, "energy_learned": e_learned,
-                     "energy_lbs": e_lbs, "energy_random_init": e_rand, "ratio_learned_over_lbs": e_learned / e_lbs})
-        print(f"{h:>3} {default.steps:>6} {seconds:>8.2f} {e_learned:>10.1f} {e_lbs:>9.1f} {e_rand:>9.1f} "
-              f"{e_learned / e_lbs:>12.3f}", flush=True)
-    step_rows = []
-    print(f"\n{'steps':>6} {'s/basis':>8} {'E learned':>10}   (H = 6)")
-    for steps in step_counts:
-        seconds, e = train_timed(x, 6, dataclasses.replace(default, steps=steps), seed=0)
-        step_rows.append({"num_handles": 6, "steps": steps, "seconds": seconds, "energy_learned": e})
-        print(f"{steps:>6} {seconds:>8.2f} {e:>10.1f}", flush=True)
+    print(f"{'H':>3} {'s/basis':>8} {'before':>7} {'E before':>9} {'E shipped':>10} {'E LBS':>8} {'E rand':>8} "
+          f"{'shipped/LBS':>12} {'exact shp':>10} {'exact LBS':>10} {'exact blend':>11} "
+          f"{'held shp':>9} {'held LBS':>9}  source")
+    with torch_threads(1):
+        for h in handle_counts:
+            seconds, basis = train_timed(x, h, default, seed=0)
+            e = energies(basis.evaluate, x, x_test)
+            e_lbs = energies(lbs_weights(x, h, seed=0).evaluate, x, x_test)
+            e_blend = energies(blend_basis(x, h, seed=0).evaluate, x, x_test)
+            e_rand = energies(random_init_basis(x, h, default, seed=0).evaluate, x, x_test)
+            before_e, before_s = BEFORE_BY_HANDLES.get(h, (float("nan"), float("nan")))
+            rows.append({"num_handles": h, "steps": default.steps, "seconds": seconds,
+                         "seconds_before": before_s, "energy_learned_before": before_e,
+                         "energy_learned": e["mc"], "energy_lbs": e_lbs["mc"], "energy_random_init": e_rand["mc"],
+                         "ratio_learned_over_lbs": e["mc"] / e_lbs["mc"],
+                         "ratio_learned_over_lbs_before": before_e / e_lbs["mc"],
+                         "exact_learned": e["exact"], "exact_lbs": e_lbs["exact"], "exact_blend": e_blend["exact"],
+                         "exact_random_init": e_rand["exact"],
+                         "heldout_exact_learned": e["exact_heldout"], "heldout_exact_lbs": e_lbs["exact_heldout"],
+                         "source": basis.metadata["source"], "steps_kept": basis.metadata.get("steps_kept")})
+            print(f"{h:>3} {seconds:>8.2f} {before_s:>7.2f} {before_e:>9.1f} {e['mc']:>10.1f} {e_lbs['mc']:>8.1f} "
+                  f"{e_rand['mc']:>8.1f} {e['mc'] / e_lbs['mc']:>12.3f} {e['exact']:>10.1f} {e_lbs['exact']:>10.1f} "
+                  f"{e_blend['exact']:>11.1f} {e['exact_heldout']:>9.1f} {e_lbs['exact_heldout']:>9.1f}  "
+                  f"{basis.metadata['source']}", flush=True)
+        step_rows = []
+        print(f"\n{'steps':>6} {'s/basis':>8} {'before s':>9} {'E before':>9} {'E shipped':>10} {'exact':>8} "
+              f"{'held-out':>9}   (H = 6)")
+        for steps in step_counts:
+            seconds, basis = train_timed(x, 6, dataclasses.replace(default, steps=steps), seed=0)
+            e = energies(basis.evaluate, x, x_test)
+            before_e, before_s = BEFORE_BY_STEPS.get(steps, (float("nan"), float("nan")))
+            step_rows.append({"num_handles": 6, "steps": steps, "seconds": seconds, "energy_learned": e["mc"],
+                              "exact_learned": e["exact"], "heldout_exact_learned": e["exact_heldout"],
+                              "seconds_before": before_s, "energy_learned_before": before_e,
+                              "steps_kept": basis.metadata.get("steps_kept")})
+            print(f"{steps:>6} {seconds:>8.2f} {before_s:>9.2f} {before_e:>9.1f} {e['mc']:>10.1f} {e['exact']:>8.1f} "
+                  f"{e['exact_heldout']:>9.1f}", flush=True)
 
     RESULTS.mkdir(parents=True, exist_ok=True)
     out = {
         "bench": "skinning", "quick": args.quick, "shape_m": BEAM_M, "num_points": 2000, "poisson_ratio": NU,
-        "settings": dataclasses.asdict(default), "by_handles": rows, "by_steps": step_rows,
+        "settings": dataclasses.asdict(default), "torch_threads": 1, "by_handles": rows, "by_steps": step_rows,
         "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(),
                     "load_avg_1min": os.getloadavg()[0], "torch": torch.__version__},
-        "energy_metric": "perturbation_energy: mean stable neo-Hookean energy density (E=1, lengths / longest side) "
-                         "of 128 random perturbations T~0.01 N(0,1) of orthonormalised non-constant handles, / 0.01^2",
+        "energy_metric": f"perturbation_energy: mean stable neo-Hookean energy density (E=1, lengths / longest side) "
+                         f"of {MC_DRAWS} random perturbations T~0.01 N(0,1) of orthonormalised non-constant handles, "
+                         f"/ 0.01^2; exact_*: its closed-form small-perturbation expectation "
+                         f"(expected_perturbation_energy); heldout_*: closed form on 2000 other points of the beam",
+        "before": "format v3 numbers measured by this bench in the previous run (Monte-Carlo loss, lr 1e-2, "
+                  "500 steps): energy_learned_before (MC, 128 draws) and seconds_before",
     }
     (RESULTS / "skinning.json").write_text(json.dumps(out, indent=2))
     _plot(rows, step_rows)
@@ -133,18 +173,31 @@ def _plot(rows: list[dict], step_rows: list[dict]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     hs = [r["num_handles"] for r in rows]
-    for key, label in (("energy_learned", "learned (Simplicits)"), ("energy_lbs", "LBS (RBF)"),
-                       ("energy_random_init", "random-init MLP")):
-        a.plot(hs, [r[key] for r in rows], "o-", label=label)
+    for key, label, style in (("energy_learned_before", "learned, before (v3)", "s--"),
+                              ("energy_learned", "shipped, after (v4)", "o-"),
+                              ("energy_lbs", "LBS (RBF) baseline", "^-"),
+                              ("energy_random_init", "random-init MLP", "x:")):
+        a.plot(hs, [r[key] for r in rows], style, label=label)
     a.set_xlabel("handles H")
-    a.set_ylabel("energy per unit perturbation (E=1)")
+    a.set_ylabel("energy per unit perturbation (E=1, MC 128 draws)")
     a.set_yscale("log")
+    a.set_title("beam 0.4x0.1x0.1 m, 2000 points, default settings")
     a.legend()
-    b.plot([r["steps"] for r in step_rows], [r["seconds"] for r in step_rows], "o-")
+    steps = [r["steps"] for r in step_rows]
+    b.plot(steps, [r["energy_learned_before"] for r in step_rows], "s--", label="before (v3), MC")
+    b.plot(steps, [r["energy_learned"] for r in step_rows], "o-", label="after (v4), MC")
+    b.plot(steps, [r["exact_learned"] for r in step_rows], "d-", label="after (v4), closed form")
+    b.plot(steps, [r["heldout_exact_learned"] for r in step_rows], "v-.", label="after (v4), closed form, held-out")
+    b.set_xscale("log")
     b.set_xlabel("Adam steps (H = 6)")
-    b.set_ylabel("seconds per basis")
+    b.set_ylabel("energy per unit perturbation (E=1)")
+    b.legend(loc="upper left")
+    t = b.twinx()
+    t.plot(steps, [r["seconds"] for r in step_rows], "k.:", label="s/basis (after)")
+    t.set_ylabel("seconds per basis (1 thread)")
+    t.legend(loc="upper right")
     fig.tight_layout()
     fig.savefig(RESULTS / "skinning.png", dpi=100)
 

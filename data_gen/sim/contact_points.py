@@ -6,7 +6,8 @@ half a cubature spacing, a thin plate by centimetres).  When the caller knows th
 (:class:`SurfaceSamples`: points, outward normals and area; optionally the solid's SDF), contact uses
 spheres that touch the surface from inside instead:
 
-* ``count`` surface samples are picked evenly spread (Morton clusters + Lloyd, as for cubature);
+* ``count`` surface samples are picked by farthest-point sampling: extremities (corners, rims) first,
+  then evenly spread, so even a small count keeps the object's outline;
 * every sphere gets the radius ``r = 0.5 sqrt(area / count)`` (half the sample spacing) and its
   centre is the sample moved inward by ``r`` along the normal, so its outermost point is the
   surface sample itself: a face resting on the ground sits at its true height, whatever ``count``;
@@ -28,7 +29,6 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from data_gen.sim.cubature import sample_cubature
 from data_gen.sim.reduced import DTYPE, affine_basis, displacement_from_tmat
 
 SdfFn = Callable[[np.ndarray], np.ndarray]
@@ -117,8 +117,8 @@ def surface_spheres(surface: SurfaceSamples, count: int, seed: int) -> tuple[np.
     if not isinstance(count, (int, np.integer)) or count < 1:
         raise ValueError(f"count={count!r} is out of range; allowed: integer >= 1")
     k = int(min(count, surface.points_m.shape[0]))
-    pick = sample_cubature(torch.from_numpy(surface.points_m), k, seed=seed, volume_m3=surface.area_m2).indices
-    pts, nrm = surface.points_m[pick.numpy()], surface.normals[pick.numpy()]
+    pick = farthest_point_indices(surface.points_m, k)
+    pts, nrm = surface.points_m[pick], surface.normals[pick]
     radius = np.full(k, 0.5 * np.sqrt(surface.area_m2 / k))
     if surface.sdf is not None:
         fitted = np.zeros(k, dtype=bool)
@@ -132,6 +132,25 @@ def surface_spheres(surface: SurfaceSamples, count: int, seed: int) -> tuple[np.
             pts, nrm, out = pts[fitted], nrm[fitted], out[fitted]
         radius = out
     return pts - radius[:, None] * nrm, radius
+
+
+def farthest_point_indices(points_m: np.ndarray, count: int) -> np.ndarray:
+    """Indices (count,) of a farthest-point sampling of ``points_m`` (n,3), deterministic.
+
+    Starts at the point farthest from the centroid, then repeatedly takes the point farthest from all
+    chosen ones: extremities (corners, tips, rims) come first, so even a small count keeps an object's
+    outline, and the chosen points are evenly spread (no two closer than the final covering radius).
+    """
+    x = torch.from_numpy(np.ascontiguousarray(points_m, dtype=np.float64))
+    n = x.shape[0]
+    count = int(min(count, n))
+    chosen = torch.empty(count, dtype=torch.int64)
+    chosen[0] = torch.argmax((x - x.mean(0)).norm(dim=1))
+    dist = (x - x[chosen[0]]).norm(dim=1)
+    for i in range(1, count):  # loop over picks, vectorised over points
+        chosen[i] = torch.argmax(dist)
+        dist = torch.minimum(dist, (x - x[chosen[i]]).norm(dim=1))
+    return chosen.numpy()
 
 
 @dataclass

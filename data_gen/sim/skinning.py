@@ -3,36 +3,71 @@
 A basis maps rest positions x0 (m) to H skinning weights w_h(x0) and their
 gradients grad w_h(x0) (1/m). Column 0 is the constant handle (w = 1,
 grad w = 0); columns 1..H-1 come from a small ELU MLP evaluated on the rest
-points rescaled to the bounding cube [-1, 1]^3 (same scale on every axis). The reduced kinematics that use it:
+points rescaled to the bounding cube [-1, 1]^3 (same scale on every axis), or,
+when that is better (see "Guard" below), from a linear-blend baseline. The
+reduced kinematics that use it:
 
     x(x0) = x0 + sum_h w_h(x0) T_h [x0; 1],
     F(x0) = I + sum_h ( w_h(x0) T_h[:, :3] + T_h [x0; 1] grad w_h(x0)^T ).
 
-Training minimises the stable neo-Hookean energy (``material.py``) of random
-handle perturbations, with E normalised to 1 and lengths normalised by the
-object's largest bounding-box side, plus an orthogonality penalty
-MSE(W^T W / n, I). Neither term depends on E, density or object size, so one
-basis serves every Young's modulus for a given shape, Poisson ratio and seed.
+Objective. Simplicits trains on the stable neo-Hookean energy of a few random
+handle perturbations T_h ~ s N(0, 1) per step plus an orthogonality penalty.
+That Monte-Carlo loss is noisy (10 draws per step) and measured here it barely
+learned (bench/results/skinning.json, format v3). For small perturbations its
+expectation has a closed form: with Hooke's law (the small-strain limit of the
+stable neo-Hookean energy), independent entries of T_h and columns made
+orthonormal under <a, b> = mean(a b),
 
-Departure from Simplicits: the energy of each step is evaluated on the batch's
-weights after making them orthonormal (a Cholesky mix, differentiable), so the
-energy term measures the subspace, not the column scale; the penalty only
-keeps the raw columns well conditioned. After training the exact
-orthonormalisation on all rest points is folded into the output layer, so a
-trained basis satisfies W^T W / n = I (column 0 = 1) to round-off.
+    E[energy density] / s^2 = (2 mu + lam / 2) sum_{h >= 1} Q_hh,
+    Q_hk = mean_x( 3 w_h w_k + w_h (y . g_k) + (y . g_h) w_k + (1 + |y|^2) g_h . g_k ),
+
+with y = (x0 - centre) / L and g = L grad w (L the largest bounding-box side,
+E = 1). The Poisson ratio only scales it, so the best subspace of this
+objective does not depend on nu or E. ``expected_perturbation_energy`` is this
+formula; ``perturbation_energy`` is the Monte-Carlo measure used by the bench.
+
+Training (``_optimise``), all in the normalised frame:
+
+1. Ritz output layer: for any hidden layers, the output layer that minimises the
+   objective is a generalised eigenproblem (Q of the last hidden features
+   against their Gram matrix, constant projected out); its H - 1 lowest
+   eigenvectors are the output weights. Solved in float64 at initialisation,
+   at every checkpoint and at the end.
+2. Hidden layers: Adam (float32, one CPU thread) on the exact objective of a
+   random batch of points, with the output layer re-solved on that batch every
+   step (variable projection), so the gradient moves only the feature space.
+   The learning rate decays exponentially to ``final_learning_rate`` over
+   ``decay_steps`` and then stays there, independent of ``steps``, so a shorter
+   run is a prefix of a longer one.
+3. Checkpoints every ``checkpoint_every`` steps: the objective on all points
+   with the Ritz output layer; the best checkpoint (the initial one included)
+   is kept. So the result never gets worse with more steps (for step counts
+   that are multiples of ``checkpoint_every``) and is never worse than the
+   Ritz fit on the random initial features.
+
+Guard: the shipped basis is compared, by ``expected_perturbation_energy`` on the
+training points, with a linear-blend baseline (``blend_basis``: H normalised
+Gaussian RBF weights at k-means centres) and the better one is kept; which one
+is logged and stored in ``SkinningBasis.metadata`` (also in the cache file).
+
+Every shipped basis has W^T W / n = I on the training points (column 0 = 1) to
+round-off: the exact orthonormalisation is folded into the output layer (MLP)
+or stored as a mix matrix (blend).
 
 Trained bases are cached on disk as ``<cache_dir>/<sha256>.pt``. The default
 cache directory is ``~/.cache/newtphys/skinning``; if the environment variable
 ``NEWTPHYS_CACHE_DIR`` is set, it is ``$NEWTPHYS_CACHE_DIR/skinning``. An
 explicit ``cache_dir`` argument wins over both.
 
-Determinism: all random draws (initial MLP weights, point subsets,
-perturbations) come from ``torch.Generator`` objects seeded by ``seed``; on CPU
-with the same torch build and thread count the weights are bit-identical.
+Determinism: all random draws (initial MLP weights, point subsets, blend
+centres) come from ``torch.Generator`` objects seeded by ``seed``; on CPU with
+the same torch build the weights are bit-identical (training runs on one
+thread).
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import json
@@ -50,9 +85,12 @@ from data_gen.sim.threads import torch_threads
 
 logger = logging.getLogger(__name__)
 
-_CACHE_FORMAT = "newtphys-skinning-v3"
+_CACHE_FORMAT = "newtphys-skinning-v4"
 _DTYPE = torch.float64
 _TRAIN_DTYPE = torch.float32
+_RITZ_RTOL_F64 = 1e-12  # feature-Gram eigenvalues below this x the largest are treated as null (float64)
+_RITZ_RTOL_F32 = 1e-6  # the same for float32 features inside a training step
+_BLEND_LLOYD_ITERATIONS = 5  # k-means steps after farthest-point seeding of the blend centres
 
 
 # --------------------------------------------------------------------------- settings
@@ -63,43 +101,48 @@ class SkinningTrainingSettings:
     """Hyper-parameters of skinning training (all dimensionless).
 
     Attributes:
-        steps: Adam steps.
+        steps: Adam steps on the hidden layers (0 is not allowed; 1 is nearly
+            the Ritz fit of the random initial features).
         learning_rate: initial Adam learning rate.
-        final_learning_rate: learning rate at the last step (exponential decay).
+        final_learning_rate: learning rate reached at ``decay_steps`` (exponential
+            decay), kept after that.
+        decay_steps: length of the decay, in steps; independent of ``steps``.
         hidden_layers: number of hidden Linear+ELU layers after the input layer.
-        width: hidden width.
+        width: hidden width; at least H - 1 for a learned basis (else the blend
+            baseline is shipped).
         points_per_step: rest points sampled (without replacement) per step.
-        perturbations_per_step: random handle perturbations per step.
-        perturbation_scale: std of the entries of each perturbed 3x4 T_h, in
-            normalised length units (object's largest side = 1).
-        orthogonality_weight: weight of MSE(W^T W / n, I) against the mean
-            elastic energy density (E = 1).
+        checkpoint_every: steps between evaluations of the objective on all
+            points (the best evaluated state is kept).
 
-    Defaults chosen on a 0.4 x 0.1 x 0.1 m beam, 2000 points, H = 6, nu = 0.3
-    (perturbation energy, lower is better; random init ~1260): 300 steps at
-    lr 3e-3 -> 743, 1000 at 3e-3 -> 678, 2000 at 3e-3 -> 647, 1000 at 1e-2 -> 626,
-    500 at 1e-2 -> 605 (the default).
+    Defaults chosen on a 0.4 x 0.1 x 0.1 m beam, 2000 points, H = 6, one thread
+    (expected perturbation energy, E = 1; bench/results/skinning.json): Ritz fit of the
+    random init 530; 500 steps at lr 1e-3 -> 496 (7-8 s), at 3e-3 -> 495, at 1e-2 -> 502;
+    1024 points per step -> 492 (11 s). At H = 12 the same settings give 1848 (init 1965).
     """
 
     steps: int = 500
-    learning_rate: float = 1e-2
-    final_learning_rate: float = 1e-3
+    learning_rate: float = 1e-3
+    final_learning_rate: float = 1e-4
+    decay_steps: int = 500
     hidden_layers: int = 4
     width: int = 64
     points_per_step: int = 512
-    perturbations_per_step: int = 10
-    perturbation_scale: float = 0.1
-    orthogonality_weight: float = 100.0
+    checkpoint_every: int = 25
 
     def __post_init__(self) -> None:
-        for name in ("steps", "hidden_layers", "width", "points_per_step", "perturbations_per_step"):
+        for name in ("steps", "decay_steps", "hidden_layers", "width", "points_per_step", "checkpoint_every"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name}={value!r} is out of range; allowed: integer >= 1")
-        for name in ("learning_rate", "final_learning_rate", "perturbation_scale", "orthogonality_weight"):
+        for name in ("learning_rate", "final_learning_rate"):
             value = getattr(self, name)
             if not (value > 0.0) or math.isinf(value):
                 raise ValueError(f"{name}={value!r} is out of range; allowed: finite > 0")
+
+    def learning_rate_at(self, step: int) -> float:
+        """Learning rate of (0-based) ``step``: lr0 (lr_end / lr0)^(min(step, decay_steps) / decay_steps)."""
+        frac = min(step, self.decay_steps) / self.decay_steps
+        return self.learning_rate * (self.final_learning_rate / self.learning_rate) ** frac
 
 
 # --------------------------------------------------------------------------- MLP
@@ -134,22 +177,65 @@ class SkinningMLP(torch.nn.Module):
             h = torch.nn.functional.elu(layer(h))
         return self.layers[-1](h)
 
-    def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Values (n, outputs) and Jacobian d out / d u, shape (n, outputs, 3)."""
+    def features_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Last hidden activations (n, width) and their Jacobian d h / d u, shape (n, width, 3)."""
         first = self.layers[0]
         a = first(u)
         # tangents stored as (3, n, features): each layer is then one large matmul
         da = first.weight.T[:, None, :].expand(3, u.shape[0], first.out_features)
-        for layer in self.layers[1:]:
-            h = torch.nn.functional.elu(a)
-            slope = torch.where(a > 0, torch.ones_like(a), torch.exp(torch.clamp(a, max=0.0)))
-            dh = slope[None] * da
+        for layer in self.layers[1:-1]:
+            h, dh = _elu_with_tangent(a, da)
             a = layer(h)
             da = dh @ layer.weight.T
-        return a, da.permute(1, 2, 0)
+        h, dh = _elu_with_tangent(a, da)
+        return h, dh.permute(1, 2, 0)
+
+    def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Values (n, outputs) and Jacobian d out / d u, shape (n, outputs, 3)."""
+        h, dh = self.features_with_jacobian(u)
+        last = self.layers[-1]
+        return last(h), torch.einsum("nkj,ok->noj", dh, last.weight)
+
+
+def _elu_with_tangent(a: torch.Tensor, da: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """ELU of pre-activations a (n, f) and the tangents da (3, n, f) pushed through it."""
+    slope = torch.where(a > 0, torch.ones_like(a), torch.exp(torch.clamp(a, max=0.0)))
+    return torch.nn.functional.elu(a), slope[None] * da
 
 
 # --------------------------------------------------------------------------- basis
+
+
+@dataclass(frozen=True)
+class BlendWeights:
+    """Linear-blend weights: H normalised Gaussian RBFs, then an H x H column mix.
+
+    w_raw_h(x) = exp(-|x - c_h|^2 / (2 sigma^2)) / sum_k exp(-|x - c_k|^2 / (2 sigma^2));
+    the basis columns are [1, w_raw_1 .. w_raw_{H-1}] @ mix (the raw weights sum to 1,
+    so the constant and H - 1 of them span the same space as all H).
+
+    Attributes:
+        centres_m: (H, 3) RBF centres, m.
+        width_m: sigma, m (> 0).
+        mix: (H, H) upper-triangular mix with mix[0, 0] = 1 (makes the columns orthonormal).
+    """
+
+    centres_m: torch.Tensor
+    width_m: float
+    mix: torch.Tensor
+
+    def evaluate(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Weights (n, H) and gradients (n, H, 3), 1/m, at points x (n, 3) in m."""
+        diff = x[:, None, :] - self.centres_m[None]  # (n, H, 3)
+        d2 = (diff**2).sum(-1)
+        # shift by the nearest centre's distance: the ratios are unchanged and nothing underflows
+        logits = -(d2 - d2.min(dim=1, keepdim=True).values) / (2.0 * self.width_m**2)
+        w = torch.softmax(logits, dim=1)
+        dlog = -diff / self.width_m**2  # d log g_h / dx
+        dw = w[:, :, None] * (dlog - torch.einsum("nh,nhk->nk", w, dlog)[:, None, :])
+        ones, zeros = torch.ones_like(w[:, :1]), torch.zeros_like(dw[:, :1])
+        raw_w, raw_g = torch.cat((ones, w[:, 1:]), 1), torch.cat((zeros, dw[:, 1:]), 1)
+        return raw_w @ self.mix, torch.einsum("nhk,hm->nmk", raw_g, self.mix)
 
 
 class SkinningBasis:
@@ -157,9 +243,13 @@ class SkinningBasis:
 
     Args:
         num_handles: H >= 1, including the constant handle 0.
-        mlp: MLP with H - 1 outputs, or None for the rigid (H = 1) basis.
+        mlp: MLP with H - 1 outputs, or None for the rigid (H = 1) or blend basis.
         center_m: (3,) centre of the rest bounding box, m.
         half_extent_m: (3,) MLP input half-widths, m (> 0): input = (x0 - center) / half_extent.
+        blend: linear-blend weights with H centres instead of an MLP (what the training
+            guard ships when it beats the learned basis).
+        metadata: how the basis was made, e.g. {"source": "learned" | "blend" | "rigid",
+            "energy_learned": ..., "energy_blend": ...} (expected perturbation energies, E = 1).
     """
 
     def __init__(
@@ -168,22 +258,36 @@ class SkinningBasis:
         mlp: SkinningMLP | None = None,
         center_m: torch.Tensor | None = None,
         half_extent_m: torch.Tensor | None = None,
+        *,
+        blend: BlendWeights | None = None,
+        metadata: dict[str, str | float | int] | None = None,
     ) -> None:
         if num_handles < 1:
             raise ValueError(f"num_handles={num_handles!r} is out of range; allowed: >= 1")
-        if (mlp is None) != (num_handles == 1):
-            raise ValueError(f"num_handles={num_handles} needs an MLP iff num_handles > 1 (got mlp={mlp is not None})")
+        if mlp is not None and blend is not None:
+            raise ValueError("give either mlp or blend, not both")
+        has_weights = mlp is not None or blend is not None
+        if has_weights != (num_handles > 1):
+            raise ValueError(
+                f"num_handles={num_handles} needs an MLP or blend weights iff num_handles > 1 "
+                f"(got mlp={mlp is not None}, blend={blend is not None})"
+            )
         if mlp is not None and (center_m is None or half_extent_m is None):
             raise ValueError("center_m and half_extent_m are required with an MLP")
+        if blend is not None and tuple(blend.centres_m.shape) != (num_handles, 3):
+            raise ValueError(f"blend.centres_m must have shape ({num_handles}, 3); got {tuple(blend.centres_m.shape)}")
         self.num_handles = num_handles
         self.mlp = mlp
+        self.blend = blend
         self.center_m = None if center_m is None else center_m.to(_DTYPE)
         self.half_extent_m = None if half_extent_m is None else half_extent_m.to(_DTYPE)
+        default_source = "rigid" if num_handles == 1 else ("blend" if blend is not None else "learned")
+        self.metadata: dict[str, str | float | int] = {"source": default_source, **(metadata or {})}
 
     @property
     def is_rigid(self) -> bool:
-        """True for the single affine handle (no MLP)."""
-        return self.mlp is None
+        """True for the single affine handle (no MLP, no blend)."""
+        return self.num_handles == 1
 
     def evaluate(self, points_rest: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Weights (n, H) and gradients (n, H, 3) in 1/m, float64, at rest points (n, 3) in m.
@@ -194,6 +298,9 @@ class SkinningBasis:
         n = x.shape[0]
         ones = torch.ones(n, 1, dtype=_DTYPE)
         zeros = torch.zeros(n, 1, 3, dtype=_DTYPE)
+        if self.blend is not None:
+            w, g = self.blend.evaluate(x)
+            return torch.cat((ones, w[:, 1:]), dim=1), torch.cat((zeros, g[:, 1:]), dim=1)
         if self.mlp is None:
             return ones, zeros
         with torch.no_grad():
@@ -203,28 +310,39 @@ class SkinningBasis:
         return torch.cat((ones, w), dim=1), torch.cat((zeros, dw_dx), dim=1)
 
     def to_payload(self) -> dict:
-        """Plain-data form (tensors, ints, floats) for ``torch.save`` / ``torch.load(weights_only=True)``."""
-        if self.mlp is None:
-            return {"num_handles": 1}
-        return {
-            "num_handles": self.num_handles,
-            "hidden_layers": len(self.mlp.layers) - 2,
-            "width": self.mlp.layers[0].out_features,
-            "center_m": self.center_m.clone(),
-            "half_extent_m": self.half_extent_m.clone(),
-            "state_dict": {k: v.detach().clone() for k, v in self.mlp.state_dict().items()},
-        }
+        """Plain-data form (tensors, ints, floats, str) for ``torch.save`` / ``torch.load(weights_only=True)``."""
+        payload: dict = {"num_handles": self.num_handles, "metadata": dict(self.metadata)}
+        if self.blend is not None:
+            payload["blend"] = {
+                "centres_m": self.blend.centres_m.clone(),
+                "width_m": float(self.blend.width_m),
+                "mix": self.blend.mix.clone(),
+            }
+        elif self.mlp is not None:
+            payload.update(
+                hidden_layers=len(self.mlp.layers) - 2,
+                width=self.mlp.layers[0].out_features,
+                center_m=self.center_m.clone(),
+                half_extent_m=self.half_extent_m.clone(),
+                state_dict={k: v.detach().clone() for k, v in self.mlp.state_dict().items()},
+            )
+        return payload
 
     @classmethod
-    def from_payload(cls, payload: dict) -> "SkinningBasis":
+    def from_payload(cls, payload: dict) -> SkinningBasis:
         """Inverse of ``to_payload``; raises KeyError/RuntimeError on malformed payloads."""
         num_handles = int(payload["num_handles"])
+        metadata = dict(payload.get("metadata", {}))
         if num_handles == 1:
             return rigid_basis()
+        if "blend" in payload:
+            b = payload["blend"]
+            blend = BlendWeights(b["centres_m"].to(_DTYPE), float(b["width_m"]), b["mix"].to(_DTYPE))
+            return cls(num_handles, blend=blend, metadata=metadata)
         mlp = SkinningMLP(num_handles - 1, int(payload["hidden_layers"]), int(payload["width"]))
         mlp.load_state_dict(payload["state_dict"])
         mlp.requires_grad_(False)
-        return cls(num_handles, mlp, payload["center_m"], payload["half_extent_m"])
+        return cls(num_handles, mlp, payload["center_m"], payload["half_extent_m"], metadata=metadata)
 
 
 def rigid_basis() -> SkinningBasis:
@@ -301,8 +419,8 @@ def train_skinning_basis(
         raise ValueError(f"num_handles={num_handles!r} is out of range; allowed: integer in [1, 64]")
     lame_parameters(1.0, poisson_ratio)  # validates poisson_ratio
     x = _check_points(points_rest, "points_rest")
-    if x.shape[0] < 4:
-        raise ValueError(f"points_rest has {x.shape[0]} points; allowed: >= 4")
+    if x.shape[0] < max(4, num_handles):
+        raise ValueError(f"points_rest has {x.shape[0]} points; allowed: >= max(4, num_handles) = {max(4, num_handles)}")
     if num_handles == 1:
         return rigid_basis()
 
@@ -310,7 +428,7 @@ def train_skinning_basis(
     path = _cache_directory(cache_dir) / f"{key}.pt"
     cached = _load_cached(path, key)
     if cached is not None:
-        logger.info("skinning cache hit: %s (H=%d)", path, num_handles)
+        logger.info("skinning cache hit: %s (H=%d, %s basis)", path, num_handles, cached.metadata.get("source"))
         return cached
     logger.info("skinning cache miss: training H=%d on %d points (%s)", num_handles, x.shape[0], path)
     basis = _optimise(x, num_handles, poisson_ratio, settings, seed)
@@ -410,66 +528,222 @@ def perturbation_energy(
     return float(energy_density(F, mu, lam).mean()) / scale**2
 
 
+def expected_perturbation_energy(
+    weights: torch.Tensor, grads: torch.Tensor, points: torch.Tensor, poisson_ratio: float
+) -> float:
+    """Closed-form expectation of ``perturbation_energy`` in the small-perturbation limit (E = 1).
+
+    (2 mu + lam / 2) trace(Q) over the orthonormalised non-constant columns, with Q
+    the energy form of the module docstring; deterministic, no sampling noise.
+
+    Args:
+        weights (n, H), grads (n, H, 3) in 1/m, points (n, 3) in m, H >= 2.
+    """
+    if weights.shape[1] < 2:
+        raise ValueError(f"weights has {weights.shape[1]} columns; allowed: >= 2 (constant + learned)")
+    center, _, longest = normalised_frame(points)
+    y = (points - center) / longest
+    n = weights.shape[0]
+    mix = _orthonormalising_mix(weights.T @ weights / n, ridge=0.0)
+    form = mix.T @ _energy_form(weights, grads * longest, y) @ mix
+    return _energy_scale(poisson_ratio) * float(torch.trace(form[1:, 1:]))
+
+
+def blend_basis(points_rest: torch.Tensor, num_handles: int, seed: int = 0) -> SkinningBasis:
+    """Linear-blend-skinning baseline: H normalised Gaussian RBF weights, columns orthonormalised.
+
+    Centres: farthest-point seeding from a seeded random start, then
+    ``_BLEND_LLOYD_ITERATIONS`` k-means steps over the points. Width sigma =
+    (V / H)^(1/3) with V the bounding-box volume (each side at least 5 % of the
+    longest), m. The columns are made orthonormal under mean(a b) on ``points_rest``.
+
+    Args:
+        points_rest: (n, 3) rest positions, m, n >= num_handles.
+        num_handles: H in [2, n].
+        seed: seed of the first centre.
+    """
+    x = _check_points(points_rest, "points_rest")
+    n = x.shape[0]
+    if not isinstance(num_handles, int) or not (2 <= num_handles <= n):
+        raise ValueError(f"num_handles={num_handles!r} is out of range; allowed: integer in [2, {n}]")
+    centres = _kmeans_centres(x, num_handles, seed)
+    _, _, longest = normalised_frame(x)
+    sides = (x.max(0).values - x.min(0).values).clamp(min=0.05 * longest)
+    width = float((sides.prod() / num_handles) ** (1.0 / 3.0))
+    raw = BlendWeights(centres, width, torch.eye(num_handles, dtype=_DTYPE))
+    w, _ = raw.evaluate(x)
+    mix = _orthonormalising_mix(w.T @ w / n, ridge=0.0)
+    return SkinningBasis(num_handles, blend=BlendWeights(centres, width, mix))
+
+
+def _kmeans_centres(x: torch.Tensor, k: int, seed: int) -> torch.Tensor:
+    """k centres (k, 3), m: farthest-point seeding (loop over centres), then Lloyd steps."""
+    gen = torch.Generator().manual_seed(int(seed))
+    chosen = [int(torch.randint(x.shape[0], (1,), generator=gen))]
+    dist = ((x - x[chosen[0]]) ** 2).sum(1)
+    for _ in range(k - 1):
+        chosen.append(int(torch.argmax(dist)))
+        dist = torch.minimum(dist, ((x - x[chosen[-1]]) ** 2).sum(1))
+    centres = x[chosen].clone()
+    for _ in range(_BLEND_LLOYD_ITERATIONS):
+        label = torch.cdist(x, centres).argmin(dim=1)
+        counts = torch.bincount(label, minlength=k).to(_DTYPE)
+        sums = torch.zeros_like(centres).index_add_(0, label, x)
+        keep = counts > 0  # an empty cluster keeps its centre
+        centres[keep] = sums[keep] / counts[keep, None]
+    return centres
+
+
+def _energy_scale(poisson_ratio: float) -> float:
+    """2 mu + lam / 2 at E = 1: expected Hooke energy of one unit random 3x4 perturbation per |B|_F^2."""
+    mu, lam = lame_parameters(1.0, poisson_ratio)
+    return 2.0 * mu + 0.5 * lam
+
+
+def _energy_form(w: torch.Tensor, g: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Q (K, K): mean_x of 3 w w^T + w (y.g)^T + (y.g) w^T + (1 + |y|^2) g g^T.
+
+    w (n, K), g (n, K, 3) gradients in normalised length units, y (n, 3) normalised points.
+    """
+    yg = torch.einsum("nkj,nj->nk", g, y)
+    r2 = 1.0 + (y**2).sum(1)
+    cross = w.T @ yg
+    grad_part = torch.einsum("nkj,nmj->km", g * r2[:, None, None], g)
+    return (3.0 * w.T @ w + cross + cross.T + grad_part) / w.shape[0]
+
+
+def _ritz_output(
+    h: torch.Tensor, dh: torch.Tensor, y: torch.Tensor, outputs: int, rtol: float
+) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Best output layer for features h (n, K) with gradients dh (n, K, 3) (normalised units).
+
+    Returns (coef (K + 1, outputs), energies (outputs,)): the weights [1, h] @ coef are the
+    ``outputs`` lowest modes of Q against the Gram matrix, orthogonal to the constant and
+    orthonormal under mean(a b); energies are their Q values (without the material scale).
+    None if the features span fewer than ``outputs`` directions beyond the constant.
+    """
+    n, k = h.shape
+    mean = h.mean(0)
+    centred = h - mean
+    evals, evecs = torch.linalg.eigh(centred.T @ centred / n)
+    keep = evals > rtol * evals.max().clamp(min=torch.finfo(h.dtype).tiny)
+    if int(keep.sum()) < outputs:
+        return None
+    basis = torch.zeros(k + 1, int(keep.sum()), dtype=h.dtype)
+    basis[1:] = evecs[:, keep] / evals[keep].sqrt()
+    basis[0] = -(mean @ basis[1:])  # [1, h] @ basis = centred features, whitened
+    w = torch.cat((torch.ones(n, 1, dtype=h.dtype), h), 1)
+    g = torch.cat((torch.zeros(n, 1, 3, dtype=h.dtype), dh), 1)
+    modes, vecs = torch.linalg.eigh(basis.T @ _energy_form(w, g, y) @ basis)
+    return basis @ vecs[:, :outputs], modes[:outputs]
+
+
+def _ritz_fit(mlp: SkinningMLP, y: torch.Tensor, input_scale: torch.Tensor) -> tuple[float, SkinningMLP] | None:
+    """A float64 copy of ``mlp`` with the Ritz output layer on all points y; (sum of mode energies, copy)."""
+    fitted = copy.deepcopy(mlp).to(_DTYPE).requires_grad_(False)
+    with torch.no_grad():
+        h, dh_du = fitted.features_with_jacobian(y * input_scale)
+        out = _ritz_output(h, dh_du * input_scale, y, fitted.layers[-1].out_features, _RITZ_RTOL_F64)
+        if out is None:
+            return None
+        coef, modes = out
+        fitted.layers[-1].weight.copy_(coef[1:].T)
+        fitted.layers[-1].bias.copy_(coef[0])
+    return float(modes.sum()), fitted
+
+
 def _optimise(
     x: torch.Tensor, num_handles: int, poisson_ratio: float, settings: SkinningTrainingSettings, seed: int
 ) -> SkinningBasis:
-    """Adam on mean energy density (orthonormalised batch) + w_orth * MSE(W^T W / n, I).
+    """Ritz-initialised variable-projection Adam with best-checkpoint selection, then the blend guard.
 
-    Runs in float32 on one CPU thread (see ``data_gen.sim.threads``); the finished
-    MLP is converted to float64 and its columns are made exactly orthonormal
-    on all rest points by folding a triangular mix into the output layer.
+    See the module docstring. Returns the better of the learned and the blend basis by
+    ``expected_perturbation_energy`` on ``x``; the choice and both energies are in ``metadata``.
     """
     with torch_threads(1):
-        gen = torch.Generator().manual_seed(int(seed))
         center, half, longest = normalised_frame(x)
         y64 = (x - center) / longest  # uniform scale: the shape is preserved
-        input_scale64 = longest / half  # u = y * input_scale in [-1, 1]^3
-        y_all, input_scale = y64.to(_TRAIN_DTYPE), input_scale64.to(_TRAIN_DTYPE)
-        mlp = SkinningMLP(num_handles - 1, settings.hidden_layers, settings.width, dtype=_TRAIN_DTYPE)
-        mlp.reset_parameters(gen)
-        mu, lam = lame_parameters(1.0, poisson_ratio)
-        opt = torch.optim.Adam(mlp.parameters(), lr=settings.learning_rate)
-        decay = (settings.final_learning_rate / settings.learning_rate) ** (1.0 / max(settings.steps - 1, 1))
-        sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=decay)
+        scale64 = longest / half  # MLP input u = y * scale in [-1, 1]^3
+        learned = _train_learned(y64, scale64, num_handles, settings, seed)
+        blend = blend_basis(x, num_handles, seed=seed)
+        e_blend = expected_perturbation_energy(*blend.evaluate(x), x, poisson_ratio)
+        if learned is None:
+            logger.warning(
+                "skinning H=%d: the MLP features span fewer than %d modes (width=%d); shipping the blend basis",
+                num_handles, num_handles - 1, settings.width,
+            )
+            blend.metadata.update(energy_blend=e_blend, energy_learned=float("nan"), steps_kept=-1)
+            return blend
+        mlp, best_step = learned
         n = x.shape[0]
-        m = min(settings.points_per_step, n)
-        eye_h = torch.eye(num_handles, dtype=_TRAIN_DTYPE)
-        ones = torch.ones(m, 1, dtype=_TRAIN_DTYPE)
-        zeros = torch.zeros(m, 1, 3, dtype=_TRAIN_DTYPE)
-        for _ in range(settings.steps):
-            idx = torch.randperm(n, generator=gen)[:m]
-            y = y_all[idx]
-            w_free, dw_du = mlp.forward_with_jacobian(y * input_scale)
-            weights = torch.cat((ones, w_free), dim=1)
-            grads = torch.cat((zeros, dw_du * input_scale), dim=1)
-            t = settings.perturbation_scale * torch.randn(
-                settings.perturbations_per_step, num_handles, 3, 4, generator=gen, dtype=_DTYPE
-            ).to(_TRAIN_DTYPE)
-            t[:, 0] = 0.0  # the constant handle is not perturbed
-            gram = weights.T @ weights / m
-            w64 = weights.to(_DTYPE)  # float64 Gram: positive definite with the ridge
-            mix = _orthonormalising_mix(w64.T @ w64 / m).to(_TRAIN_DTYPE)
-            w_orth = weights @ mix
-            g_orth = torch.einsum("nhk,hj->njk", grads, mix)
-            F = deformation_gradients(w_orth, g_orth, y, t).reshape(-1, 3, 3)
-            elastic = energy_density(F, mu, lam).mean()
-            orth = ((gram - eye_h) ** 2).mean()
-            loss = elastic + settings.orthogonality_weight * orth
-            if not bool(torch.isfinite(loss)):
-                raise RuntimeError(
-                    f"skinning training diverged (loss {float(loss)}); lower SkinningTrainingSettings.learning_rate"
-                )
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-        mlp = mlp.to(_DTYPE).requires_grad_(False)
         with torch.no_grad():
             for ridge in (1e-10, 0.0):  # the second, exact pass removes the ridge and round-off of the first
-                w_free = mlp(y64 * input_scale64)
-                weights = torch.cat((torch.ones(n, 1, dtype=_DTYPE), w_free), dim=1)
+                weights = torch.cat((torch.ones(n, 1, dtype=_DTYPE), mlp(y64 * scale64)), dim=1)
                 _fold_mix_into_last_layer(mlp, _orthonormalising_mix(weights.T @ weights / n, ridge))
-    return SkinningBasis(num_handles, mlp, center, half)
+        basis = SkinningBasis(num_handles, mlp, center, half)
+        e_learned = expected_perturbation_energy(*basis.evaluate(x), x, poisson_ratio)
+        shipped = basis if e_learned <= e_blend else blend
+        shipped.metadata.update(energy_learned=e_learned, energy_blend=e_blend, steps_kept=best_step)
+        logger.info(
+            "skinning H=%d: shipping the %s basis (expected perturbation energy, E=1: learned %.4g at step %d, "
+            "blend %.4g)", num_handles, shipped.metadata["source"], e_learned, best_step, e_blend,
+        )
+        return shipped
+
+
+def _train_learned(
+    y64: torch.Tensor, scale64: torch.Tensor, num_handles: int, settings: SkinningTrainingSettings, seed: int
+) -> tuple[SkinningMLP, int] | None:
+    """Train the hidden layers; return the best checkpoint (float64, Ritz output layer) and its step.
+
+    None if the features cannot span H - 1 modes (width too small or degenerate points).
+    """
+    gen = torch.Generator().manual_seed(int(seed))
+    outputs = num_handles - 1
+    mlp = SkinningMLP(outputs, settings.hidden_layers, settings.width, dtype=_TRAIN_DTYPE)
+    mlp.reset_parameters(gen)
+    best = _ritz_fit(mlp, y64, scale64)
+    if best is None:
+        return None
+    best_energy, best_mlp = best
+    best_step = 0
+    y_all, scale = y64.to(_TRAIN_DTYPE), scale64.to(_TRAIN_DTYPE)
+    hidden = [p for layer in mlp.layers[:-1] for p in layer.parameters()]
+    opt = torch.optim.Adam(hidden, lr=settings.learning_rate)
+    n = y_all.shape[0]
+    m = min(settings.points_per_step, n)
+    ones = torch.ones(m, 1, dtype=_TRAIN_DTYPE)
+    zeros = torch.zeros(m, 1, 3, dtype=_TRAIN_DTYPE)
+    for step in range(settings.steps):
+        for group in opt.param_groups:
+            group["lr"] = settings.learning_rate_at(step)
+        y = y_all[torch.randperm(n, generator=gen)[:m]] if m < n else y_all
+        h, dh_du = mlp.features_with_jacobian(y * scale)
+        dh = dh_du * scale
+        with torch.no_grad():  # variable projection: the optimal output layer of this batch
+            out = _ritz_output(h.to(_DTYPE), dh.to(_DTYPE), y.to(_DTYPE), outputs, _RITZ_RTOL_F32)
+        if out is None:
+            break  # the features collapsed on this batch; keep the best checkpoint so far
+        coef = out[0].to(_TRAIN_DTYPE)
+        weights = torch.cat((ones, h @ coef[1:] + coef[0]), dim=1)
+        grads = torch.cat((zeros, torch.einsum("nkj,ko->noj", dh, coef[1:])), dim=1)
+        mix = _orthonormalising_mix(weights.to(_DTYPE).T @ weights.to(_DTYPE) / m).to(_TRAIN_DTYPE)
+        form = mix.T @ _energy_form(weights, grads, y) @ mix
+        loss = torch.trace(form[1:, 1:])
+        if not bool(torch.isfinite(loss)):
+            raise RuntimeError(
+                f"skinning training diverged (loss {float(loss)}); lower SkinningTrainingSettings.learning_rate"
+            )
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        done = step + 1
+        if done % settings.checkpoint_every == 0 or done == settings.steps:
+            fit = _ritz_fit(mlp, y64, scale64)
+            if fit is not None and fit[0] < best_energy:
+                best_energy, best_mlp = fit
+                best_step = done
+    return best_mlp, best_step
 
 
 def _orthonormalising_mix(gram: torch.Tensor, ridge: float = 1e-6) -> torch.Tensor:
@@ -488,7 +762,7 @@ def _orthonormalising_mix(gram: torch.Tensor, ridge: float = 1e-6) -> torch.Tens
     else:
         raise RuntimeError(
             f"skinning weights are degenerate (Gram matrix not positive definite, mean diagonal {scale:.3g}); "
-            "training diverged: lower SkinningTrainingSettings.learning_rate or raise orthogonality_weight"
+            "training diverged: lower SkinningTrainingSettings.learning_rate"
         )
     return torch.linalg.solve_triangular(chol, eye, upper=False).T
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import logging
 from pathlib import Path
 
@@ -10,9 +12,12 @@ import torch
 
 from data_gen.sim import skinning as sk
 from data_gen.sim.skinning import (
+    BlendWeights,
     SkinningBasis,
     SkinningMLP,
     SkinningTrainingSettings,
+    blend_basis,
+    expected_perturbation_energy,
     handles_for_stiffness,
     normalised_frame,
     perturbation_energy,
@@ -23,8 +28,8 @@ from data_gen.sim.skinning import (
 
 # Reduced settings so the file runs in seconds; the assertions below hold for them.
 FAST = SkinningTrainingSettings(
-    steps=150, learning_rate=3e-3, final_learning_rate=3e-4, hidden_layers=2, width=32,
-    points_per_step=256, perturbations_per_step=4,
+    steps=150, learning_rate=3e-3, final_learning_rate=3e-4, decay_steps=150, hidden_layers=2, width=32,
+    points_per_step=256,
 )
 NU = 0.3
 H = 4
@@ -124,8 +129,9 @@ def test_gradients_match_finite_differences(trained) -> None:
 def test_trained_subspace_beats_random_init(trained) -> None:
     """Energy per unit perturbation (E = 1): the trained basis vs random-init MLPs.
 
-    Measured with FAST: trained 312; its own init (seed 7) 469; other inits (seeds 0-4)
-    386-527. Asserted: trained < 0.75 x its own init and below every other init.
+    Measured with FAST (format v4: Ritz output layer + variable-projection Adam): trained 153;
+    its own init (seed 7) 469; other inits (seeds 0-4) 386-527 (format v3 trained: 312).
+    Asserted: trained < 0.5 x its own init and below every other init.
     """
     x, basis, _ = trained
     w, g = basis.evaluate(x)
@@ -137,7 +143,7 @@ def test_trained_subspace_beats_random_init(trained) -> None:
         mlp.reset_parameters(torch.Generator().manual_seed(seed))  # seed 7: the trained basis's start
         w0, g0 = SkinningBasis(H, mlp, center, half).evaluate(x)
         energies[seed] = perturbation_energy(w0, g0, x, NU, seed=1)
-    assert e_trained < 0.75 * energies[7]
+    assert e_trained < 0.5 * energies[7]
     assert e_trained < min(energies.values())
 
 
@@ -222,6 +228,158 @@ def test_cache_key_depends_on_every_input(trained) -> None:
 def test_env_var_sets_default_cache_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("NEWTPHYS_CACHE_DIR", str(tmp_path))
     x = _beam_points(64, seed=3)
-    tiny = SkinningTrainingSettings(steps=2, hidden_layers=1, width=8, points_per_step=64, perturbations_per_step=1)
+    tiny = SkinningTrainingSettings(steps=2, hidden_layers=1, width=8, points_per_step=64)
     train_skinning_basis(x, 2, NU, tiny, seed=0)
     assert (tmp_path / "skinning" / f"{skinning_cache_key(x, 2, NU, tiny, 0)}.pt").is_file()
+
+
+# --------------------------------------------------------------------------- closed-form objective
+
+
+def _grid_box(counts: tuple[int, int, int], size_m: tuple[float, float, float]) -> torch.Tensor:
+    """Cell centres of a regular grid filling a box centred at the origin, m (symmetric: odd moments are 0)."""
+    axes = [(torch.arange(c, dtype=torch.float64) + 0.5) / c - 0.5 for c in counts]
+    grid = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    return grid * torch.tensor(size_m, dtype=torch.float64)
+
+
+def test_expected_energy_hand_value_for_a_linear_field() -> None:
+    """w_1 = x (linear along the long axis) on a symmetric grid.
+
+    Normalised coordinates y = x0 / L (L = longest side); mean(y_x) = 0, so orthonormalising
+    only divides w by its RMS: w = y_x / s, g = e_x / s with s^2 = mean(y_x^2). The energy form is
+    Q = mean(3 w^2 + 2 w (y . g) + (1 + |y|^2) |g|^2) = 3 + 2 + (1 + mean |y|^2) / s^2, times
+    2 mu + lam / 2 (E = 1, nu = 0.3: mu = 1 / 2.6, lam = 0.3 / (1.3 * 0.4)).
+    """
+    x = _grid_box((10, 4, 4), (0.4, 0.1, 0.1))
+    n = x.shape[0]
+    w = torch.stack((torch.ones(n, dtype=torch.float64), x[:, 0]), 1)
+    g = torch.zeros(n, 2, 3, dtype=torch.float64)
+    g[:, 1, 0] = 1.0  # d x / d x, 1/m x m
+    y = (x - x.mean(0)) / 0.4 * (0.4 / float((x.max(0).values - x.min(0).values).max()))
+    s2 = float((y[:, 0] ** 2).mean())
+    mu, lam = 1.0 / 2.6, 0.3 / (1.3 * 0.4)
+    hand = (2 * mu + lam / 2) * (5.0 + (1.0 + float((y**2).sum(1).mean())) / s2)
+    assert expected_perturbation_energy(w, g, x, NU) == pytest.approx(hand, rel=1e-12)
+    # the Monte-Carlo measure agrees within its sampling error: 2000 draws spread +-4 % here (few
+    # dominant Gaussian terms per draw), so average 5 x 2000 draws (~1.5 %)
+    mc = sum(perturbation_energy(w, g, x, NU, num_perturbations=2000, scale=1e-3, seed=k) for k in range(5)) / 5
+    assert mc == pytest.approx(hand, rel=0.03)
+
+
+def test_expected_energy_matches_monte_carlo_on_a_trained_basis(trained) -> None:
+    """Closed form vs 1000 random perturbations at scale 1e-3 (nonlinearity ~1e-3): measured within ~1 %."""
+    x, basis, _ = trained
+    w, g = basis.evaluate(x)
+    exact = expected_perturbation_energy(w, g, x, NU)
+    mc = perturbation_energy(w, g, x, NU, num_perturbations=1000, scale=1e-3, seed=5)
+    assert mc == pytest.approx(exact, rel=0.03)
+    assert basis.metadata["energy_learned"] == pytest.approx(exact, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- blend baseline and guard
+
+
+def _lbs_like_bench(x: torch.Tensor, num_handles: int, volume_m3: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The bench's linear-blend baseline: RBF centres from ``sample_cubature``, sigma = (V / H)^(1/3)."""
+    from data_gen.sim.cubature import sample_cubature
+
+    centres = sample_cubature(x, num_handles, seed=0, volume_m3=volume_m3).positions
+    sigma = (volume_m3 / num_handles) ** (1.0 / 3.0)
+    return BlendWeights(centres, sigma, torch.eye(num_handles, dtype=torch.float64)).evaluate(x)
+
+
+def test_blend_basis_is_orthonormal_smooth_and_round_trips() -> None:
+    x = _beam_points(300, seed=2)
+    b = blend_basis(x, 5, seed=3)
+    w, g = b.evaluate(x)
+    assert b.metadata["source"] == "blend" and not b.is_rigid and b.mlp is None
+    assert torch.equal(w[:, 0], torch.ones(300, dtype=torch.float64))
+    assert torch.equal(g[:, 0], torch.zeros(300, 3, dtype=torch.float64))
+    assert float((w.T @ w / 300 - torch.eye(5, dtype=torch.float64)).abs().max()) < 1e-10
+    h = 1e-6  # m
+    fd = torch.stack([(b.evaluate(x + d)[0] - b.evaluate(x - d)[0]) / (2 * h)
+                      for d in torch.eye(3, dtype=torch.float64) * h], -1)
+    assert float((g - fd).norm() / g.norm()) < 1e-6
+    again = SkinningBasis.from_payload(b.to_payload())
+    assert torch.equal(again.evaluate(x)[0], w) and torch.equal(again.evaluate(x)[1], g)
+    assert again.metadata["source"] == "blend"
+    assert torch.equal(blend_basis(x, 5, seed=3).evaluate(x)[0], w)  # deterministic
+
+
+def test_guard_ships_the_blend_basis_when_the_learned_one_is_worse(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A learned basis replaced by a random-init MLP (energy ~2-3x the blend's) must not ship."""
+    x = _beam_points(300, seed=4)
+
+    def _random_mlp(y64, scale64, num_handles, settings, seed):
+        mlp = SkinningMLP(num_handles - 1, settings.hidden_layers, settings.width)
+        mlp.reset_parameters(torch.Generator().manual_seed(seed))
+        return mlp, 0
+
+    monkeypatch.setattr(sk, "_train_learned", _random_mlp)
+    with caplog.at_level(logging.INFO, logger=sk.__name__):
+        b = train_skinning_basis(x, 5, NU, FAST, seed=0, cache_dir=tmp_path)
+    assert "shipping the blend basis" in caplog.text
+    assert b.metadata["source"] == "blend" and b.blend is not None
+    assert b.metadata["energy_blend"] < b.metadata["energy_learned"]
+    w, g = b.evaluate(x)
+    assert expected_perturbation_energy(w, g, x, NU) == pytest.approx(b.metadata["energy_blend"], rel=1e-9)
+    hit = train_skinning_basis(x, 5, NU, FAST, seed=0, cache_dir=tmp_path)  # from the cache
+    assert hit.metadata == b.metadata and torch.equal(hit.evaluate(x)[0], w)
+
+
+def test_too_narrow_mlp_falls_back_to_blend(tmp_path: Path) -> None:
+    """width 2 cannot span H - 1 = 4 modes: the blend basis ships, orthonormal."""
+    x = _beam_points(200, seed=5)
+    narrow = SkinningTrainingSettings(steps=5, hidden_layers=1, width=2, points_per_step=64)
+    b = train_skinning_basis(x, 5, NU, narrow, seed=0, cache_dir=tmp_path)
+    w, _ = b.evaluate(x)
+    assert b.metadata["source"] == "blend"
+    assert float((w.T @ w / 200 - torch.eye(5, dtype=torch.float64)).abs().max()) < 1e-10
+
+
+# --------------------------------------------------------------------------- quality vs the baseline and vs steps
+
+REDUCED = SkinningTrainingSettings(points_per_step=256)  # default architecture and schedule, smaller batches
+
+
+def test_beam_h8_learned_basis_beats_linear_blend(tmp_path: Path) -> None:
+    """(a) 0.4 x 0.1 x 0.1 m beam, 600 points, H = 8, 50 steps (the bench uses 2000 points, 500 steps).
+
+    Measured (expected energy, E = 1): learned 857 (Ritz init at step 0: 894); bench-style LBS
+    1152; blend guard baseline 1175. Monte-Carlo measure (256 draws): learned 835, LBS 1123.
+    Before this change (format v3) the bench measured learned 1291 vs LBS 1140 at H = 8.
+    Asserted: learned ships and is <= 0.85 x LBS (closed form) and <= LBS (Monte-Carlo).
+    """
+    x = _beam_points(600, seed=0)
+    b = train_skinning_basis(x, 8, NU, dataclasses.replace(REDUCED, steps=50), seed=0, cache_dir=tmp_path)
+    w, g = b.evaluate(x)
+    wl, gl = _lbs_like_bench(x, 8, volume_m3=0.4 * 0.1 * 0.1)
+    assert b.metadata["source"] == "learned"
+    assert expected_perturbation_energy(w, g, x, NU) <= 0.85 * expected_perturbation_energy(wl, gl, x, NU)
+    assert perturbation_energy(w, g, x, NU, 256, seed=1) <= perturbation_energy(wl, gl, x, NU, 256, seed=1)
+    assert b.metadata["energy_learned"] <= b.metadata["energy_blend"]
+
+
+def test_beam_h6_more_steps_never_worse(tmp_path: Path) -> None:
+    """(b) H = 6, 600 points: a shorter run is a prefix of a longer one and the best checkpoint
+    is kept, so the expected energy cannot rise with steps (multiples of checkpoint_every).
+
+    Measured (expected energy): 1 step 488, 25 -> 469, 50 -> 460, 100 -> 454; Monte-Carlo
+    measure (256 draws): 477, 461, 455, 451.
+    Asserted: non-increasing to round-off; 100 steps <= 0.96 x 1 step; the Monte-Carlo
+    measure (sampling noise a few %) at 100 steps is at most 5 % above the one at 25 steps.
+    """
+    x = _beam_points(600, seed=0)
+    energies, mc = [], []
+    for steps in (1, 25, 50, 100):
+        b = train_skinning_basis(x, 6, NU, dataclasses.replace(REDUCED, steps=steps), seed=0, cache_dir=tmp_path)
+        w, g = b.evaluate(x)
+        energies.append(expected_perturbation_energy(w, g, x, NU))
+        mc.append(perturbation_energy(w, g, x, NU, 256, seed=1))
+    for shorter, longer in itertools.pairwise(energies):
+        assert longer <= shorter * (1 + 1e-9)
+    assert energies[-1] <= 0.96 * energies[0]
+    assert mc[-1] <= 1.05 * mc[1]
