@@ -172,14 +172,28 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
         result = sim.run(scenario.num_frames, scenario.fps)
     except SimulationError as e:
         raise SequenceRejected("simulation_failed", str(e)) from None
-    for track in result.objects:
+    check_simulation(result, [o.material for o in objects])
+    return result
+
+
+def check_simulation(result: SimulationResult, materials: list[Material]) -> None:
+    """Reject a simulation whose labels would be wrong: non-finite positions, an object below the ground
+    (tunnelling) or inverted material (det F <= 0: a soft object crushed past what the reduced model
+    represents, e.g. E = 1 kPa hit by a heavy block).  Raises :class:`SequenceRejected` naming it."""
+    for track, material in zip(result.objects, materials):
         pts = track.contact_positions_m
         if not np.isfinite(pts).all():
             raise SequenceRejected("nan", f"object {track.object_id} has non-finite positions")
         lowest = float(pts[..., 2].min())
         if lowest < -0.5 * float(track.contact_radius_m.max()) - 0.01:
             raise SequenceRejected("tunnelling", f"object {track.object_id} reached z = {lowest:.3f} m below the ground")
-    return result
+        det_min = float(track.det_f.min())
+        if not det_min > 0.0:
+            frame = int(np.argmin(track.det_f.min(axis=1)))
+            raise SequenceRejected(
+                "inverted", f"object {track.object_id} ({track.name}): det F = {det_min:.3g} <= 0 at frame {frame} "
+                f"(young_modulus_pa={material.young_modulus_pa:.3g} is too soft for this impact)"
+            )
 
 
 def camera_matrices(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:

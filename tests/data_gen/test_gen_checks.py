@@ -1,0 +1,49 @@
+"""Post-simulation checks of the pipeline: what makes a sequence rejected, and the reason it names."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from data_gen.pipeline import SequenceRejected, check_simulation
+from data_gen.sim.contact_points import box_surface
+from data_gen.sim.material import Material
+from data_gen.sim.static_scene import StaticScene
+from data_gen.sim.world import SimObjectSpec, Simulator
+
+MATERIAL = Material(1e7, 0.3, 500.0)
+
+
+@pytest.fixture(scope="module")
+def resting_box():
+    half = (0.05, 0.05, 0.05)
+    pts = np.random.default_rng(0).uniform(-1, 1, (800, 3)) * half
+    spec = SimObjectSpec("box", pts, 1e-3, MATERIAL, position_m=(0, 0, 0.06), surface=box_surface(half, 2000, 0))
+    return Simulator(StaticScene(), [spec], (0, 0, -9.81), "draft", seed=0).run(6, 25.0)
+
+
+def test_a_clean_simulation_passes(resting_box):
+    check_simulation(resting_box, [MATERIAL])
+    assert resting_box.objects[0].det_f.min() > 0.99  # a resting 10 MPa box barely strains
+
+
+def test_inverted_material_is_rejected_with_object_frame_and_modulus(resting_box):
+    bad = copy.deepcopy(resting_box)
+    bad.objects[0].det_f[3, 7] = -0.02  # what a 1 kPa jelly crushed by an 8 kg block reached
+    with pytest.raises(SequenceRejected, match=r"det F = -0.02 <= 0 at frame 3 \(young_modulus_pa=1e\+07") as err:
+        check_simulation(bad, [MATERIAL])
+    assert err.value.reason == "inverted"
+
+
+@pytest.mark.parametrize(
+    "plant,reason",
+    [(lambda p: p.__setitem__((2, 0, 0), np.nan), "nan"), (lambda p: p.__setitem__((4, 0, 2), -0.3), "tunnelling")],
+)
+def test_non_finite_and_tunnelling_are_rejected(resting_box, plant, reason):
+    bad = copy.deepcopy(resting_box)
+    plant(bad.objects[0].contact_positions_m)
+    with pytest.raises(SequenceRejected) as err:
+        check_simulation(bad, [MATERIAL])
+    assert err.value.reason == reason
