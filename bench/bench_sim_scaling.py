@@ -1,4 +1,5 @@
-"""How the simulator's cost scales: time per step vs cubature points, handles, objects, rendered particles.
+"""How the simulator's cost scales: time per step vs cubature points, contact spheres, handles, objects,
+rendered particles.
 
 Each sweep reports the wall time per (25 FPS frame) step and the share of each part (Newton = assembly +
 line search + dense solve, broad phase = hash grid, forces = per-point contact-force recording,
@@ -23,6 +24,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sim_bench_scenes import QUICK_TRAINING, box_points  # noqa: E402
 
+from data_gen.sim.contact_points import box_surface  # noqa: E402
 from data_gen.sim.material import Material  # noqa: E402
 from data_gen.sim.presets import load_preset  # noqa: E402
 from data_gen.sim.reduced import PointDeformer, deform  # noqa: E402
@@ -60,6 +62,7 @@ def soft_box(name, pos, young=1e5, handles=None, points=3000, seed=0):
         position_m=pos,
         num_handles=handles,
         skinning_settings=QUICK_TRAINING,
+        surface=box_surface(HALF, 4000, seed),
     )
 
 
@@ -69,6 +72,16 @@ def sweep_cubature(preset, frames, counts):
         p = preset.replace(num_cubature_points=n, sleep_speed_m_s=0.0)
         rows.append(
             {"cubature_points": n, **timed_run([soft_box("box", (0.0, 0.0, 0.2), handles=4)], p, frames)}
+        )
+    return rows
+
+
+def sweep_contacts(preset, frames, counts):
+    rows = []
+    for n in counts:
+        p = preset.replace(num_cubature_points=128, num_contact_points=n, sleep_speed_m_s=0.0)
+        rows.append(
+            {"contact_points": n, **timed_run([soft_box("box", (0.0, 0.0, 0.2), handles=4)], p, frames)}
         )
     return rows
 
@@ -187,6 +200,8 @@ def main() -> None:
     }
     out["cubature"] = sweep_cubature(preset, frames, [32, 64, 128, 256, 512] + ([] if args.quick else [1024]))
     print_sweep("cubature points (1 soft object, 4 handles)", "cubature_points", out["cubature"])
+    out["contacts"] = sweep_contacts(preset, frames, [64, 128, 256, 512] + ([] if args.quick else [1024]))
+    print_sweep("contact spheres (1 soft object landing and resting, 4 handles, 128 cubature)", "contact_points", out["contacts"])
     out["handles"] = sweep_handles(preset, frames, [1, 2, 4, 8])
     print_sweep("handles (1 object, 128 cubature points)", "num_handles", out["handles"])
     out["objects"] = sweep_objects(preset, frames, [1, 2, 5, 10] + ([] if args.quick else [20]))
@@ -220,10 +235,15 @@ def plot(out: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
-    for ax, (key, label) in zip(
-        axes, [("cubature", "cubature_points"), ("handles", "num_handles"), ("objects", "objects")]
-    ):
+    sweeps = [
+        ("cubature", "cubature_points"),
+        ("contacts", "contact_points"),
+        ("handles", "num_handles"),
+        ("objects", "objects"),
+    ]
+    sweeps = [s for s in sweeps if s[0] in out]
+    fig, axes = plt.subplots(1, len(sweeps), figsize=(4 * len(sweeps), 3.6))
+    for ax, (key, label) in zip(axes, sweeps):
         rows = out[key]
         xs = [r[label] for r in rows]
         ax.plot(xs, [1e3 * r["wall_per_frame_s"] for r in rows], "o-", label="total")
