@@ -279,23 +279,25 @@ def _object_frame(
     gravity: torch.Tensor,
 ) -> dict:
     x = model.positions(q)
-    v = model.point_velocities(qdot)
     F = model.deformation_gradients(q)
-    m = model.masses_kg
-    com = (m[:, None] * x).sum(0) / model.mass_kg
-    vcom = (m[:, None] * v).sum(0) / model.mass_kg
+    # rigid-body quantities from the inertia particles (all of them when the model has them)
+    xp = model.mass_points_rest + model.mass_b @ q.reshape(3, -1).T
+    vp = model.mass_b @ qdot.reshape(3, -1).T
+    mp = model.particle_masses_kg
+    com = (mp[:, None] * xp).sum(0) / model.mass_kg
+    vcom = (mp[:, None] * vp).sum(0) / model.mass_kg
     return {
         "handle_transforms": q_to_z(q).numpy(),
         "cubature_positions_m": x.numpy(),
-        "gravity_force_n": (m[:, None] * gravity[None, :]).numpy(),
+        "gravity_force_n": (model.masses_kg[:, None] * gravity[None, :]).numpy(),
         "contact_force_n": force.numpy().copy(),
         "contact_partner": partner.numpy().copy(),
         "hydrostatic_stress_pa": model.cauchy_hydrostatic(q).numpy(),
         "det_f": torch.linalg.det(F).numpy(),
         "com_m": com.numpy(),
-        "orientation_wxyz": best_fit_rotation_wxyz(model.points_rest, x, m),
+        "orientation_wxyz": best_fit_rotation_wxyz(model.mass_points_rest, xp, mp),
         "velocity_m_s": vcom.numpy(),
-        "angular_velocity_rad_s": angular_velocity(x - com, v - vcom, m).numpy(),
+        "angular_velocity_rad_s": angular_velocity(xp - com, vp - vcom, mp).numpy(),
         "asleep": np.bool_(asleep),
     }
 

@@ -199,6 +199,11 @@ class ReducedObject:
         density_kg_m3: mass density.
         weights: (n,H), grads: (n,H,3) skinning weights and gradients (1/m).
         mu_pa, lam_pa: Lamé parameters, Pa.
+        mass_points_rest: optional (P,3) particles that integrate the inertia (the object's full
+            uniform sample, each of volume V / P) with ``mass_weights`` (P,H).  The reduced mass
+            matrix, gravity term and centre of mass then come from all P particles (computed once),
+            so the rigid-body inertia does not depend on the cubature count; the elastic energy
+            still uses the n cubature points.  Default: the cubature points.
     """
 
     points_rest: torch.Tensor
@@ -208,6 +213,8 @@ class ReducedObject:
     grads: torch.Tensor
     mu_pa: float
     lam_pa: float
+    mass_points_rest: torch.Tensor | None = None
+    mass_weights: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         self.points_rest = torch.as_tensor(self.points_rest, dtype=DTYPE)
@@ -224,12 +231,24 @@ class ReducedObject:
         self.c = deformation_basis(self.points_rest, self.weights, self.grads)
         self.c_rows = self.c.transpose(1, 2).reshape(-1, self.c.shape[1]).contiguous()  # [(i, j), a]
         self.c_cols = self.c.permute(1, 0, 2).reshape(self.c.shape[1], -1).contiguous()  # [a, (i, j)]
-        self.masses_kg = self.density_kg_m3 * self.volumes_m3
-        m4 = (self.b * self.masses_kg[:, None]).T @ self.b
+        self.masses_kg = self.density_kg_m3 * self.volumes_m3  # per cubature point (gravity labels)
+        if (self.mass_points_rest is None) != (self.mass_weights is None):
+            raise ValueError("mass_points_rest and mass_weights must be given together")
+        if self.mass_points_rest is None:
+            self.mass_points_rest, self.mass_b, particle_kg = self.points_rest, self.b, self.masses_kg
+        else:
+            self.mass_points_rest = torch.as_tensor(self.mass_points_rest, dtype=DTYPE)
+            p = self.mass_points_rest.shape[0]
+            if tuple(self.mass_weights.shape) != (p, self.weights.shape[1]):
+                raise ValueError(f"mass_weights {tuple(self.mass_weights.shape)} do not match {p} mass points")
+            self.mass_b = affine_basis(self.mass_points_rest, torch.as_tensor(self.mass_weights, dtype=DTYPE))
+            particle_kg = torch.full((p,), self.density_kg_m3 * float(self.volumes_m3.sum()) / p, dtype=DTYPE)
+        self.particle_masses_kg = particle_kg  # (P,) masses of the inertia particles
+        m4 = (self.mass_b * particle_kg[:, None]).T @ self.mass_b
         self.mass_matrix = torch.kron(torch.eye(3, dtype=DTYPE), m4)
-        self.mass_kg = float(self.masses_kg.sum())
-        self.com_rest_m = (self.masses_kg[:, None] * self.points_rest).sum(0) / self.mass_kg
-        self.mass_b_sum = (self.masses_kg[:, None] * self.b).sum(0)  # sum_i m_i b_i, (4H,)
+        self.mass_kg = float(particle_kg.sum())
+        self.com_rest_m = (particle_kg[:, None] * self.mass_points_rest).sum(0) / self.mass_kg
+        self.mass_b_sum = (particle_kg[:, None] * self.mass_b).sum(0)  # sum_p m_p b_p, (4H,)
 
     @property
     def num_handles(self) -> int:

@@ -169,7 +169,11 @@ class Simulator:
         )
         weights, grads = basis.evaluate(cub_pos)
         mu, lam = mat.lame_pa
-        model = ReducedObject(cub_pos, cub_vol, mat.density_kg_m3, weights, grads, mu, lam)
+        # inertia from every particle (exact for the sample, independent of the cubature count)
+        model = ReducedObject(
+            cub_pos, cub_vol, mat.density_kg_m3, weights, grads, mu, lam,
+            mass_points_rest=pts, mass_weights=basis.evaluate(pts)[0],
+        )
         if spec.surface is None:
             contact = ContactPoints.build(cub_pos, radius, weights, cub_pos)
         else:
