@@ -86,6 +86,7 @@ def _candidate_pairs_kernel(
     points: wp.array(dtype=wp.vec3d),
     object_ids: wp.array(dtype=wp.int32),
     radii: wp.array(dtype=wp.float64),
+    point_margins: wp.array(dtype=wp.float64),
     query_radius: wp.float64,
     margin: wp.float64,
     capacity: int,
@@ -98,7 +99,7 @@ def _candidate_pairs_kernel(
     j = int(0)
     while wp.hash_grid_query_next(query, j):
         if j > i and object_ids[j] != object_ids[i]:
-            if wp.length(points[j] - p) < radii[i] + radii[j] + margin:
+            if wp.length(points[j] - p) < radii[i] + radii[j] + margin + point_margins[i] + point_margins[j]:
                 slot = wp.atomic_add(count, 0, 1)
                 if slot < capacity:
                     pairs[slot, 0] = i
@@ -115,20 +116,28 @@ class PairFinder:
         self.capacity = 1024
 
     def find(
-        self, points_m: np.ndarray, object_ids: np.ndarray, radii_m: np.ndarray, margin_m: float
+        self,
+        points_m: np.ndarray,
+        object_ids: np.ndarray,
+        radii_m: np.ndarray,
+        margin_m: float,
+        point_margins_m: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Pairs (P,2) of global point indices i < j on different objects with gap < margin_m.
+        """Pairs (P,2) of global point indices i < j on different objects with gap < margin_m (+ the two
+        points' own ``point_margins_m`` (n,) m, e.g. how far each can move in a step).
 
         The result is sorted lexicographically, so it is deterministic on every device.
         """
         n = points_m.shape[0]
         if n == 0 or len(np.unique(object_ids)) < 2:
             return np.zeros((0, 2), dtype=np.int64)
-        query_radius = 2.0 * float(radii_m.max()) + margin_m
+        extra = np.zeros(n) if point_margins_m is None else np.asarray(point_margins_m, dtype=np.float64)
+        query_radius = 2.0 * float(radii_m.max()) + margin_m + 2.0 * float(extra.max())
         pts = wp.array(np.ascontiguousarray(points_m, dtype=np.float64), dtype=wp.vec3d, device=self.device)
         self.grid.build(pts, query_radius)
         ids = wp.array(object_ids.astype(np.int32), dtype=wp.int32, device=self.device)
         rad = wp.array(radii_m.astype(np.float64), dtype=wp.float64, device=self.device)
+        pm = wp.array(extra, dtype=wp.float64, device=self.device)
         while True:
             count = wp.zeros(1, dtype=wp.int32, device=self.device)
             pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=self.device)
@@ -140,6 +149,7 @@ class PairFinder:
                     pts,
                     ids,
                     rad,
+                    pm,
                     wp.float64(query_radius),
                     wp.float64(margin_m),
                     self.capacity,

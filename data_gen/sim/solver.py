@@ -218,7 +218,7 @@ class ImplicitEulerSolver:
             float(b.contact.velocities(b.qdot).norm(dim=1).max()) if not b.asleep else 0.0
             for b in self.bodies
         ]
-        pairs = self._candidate_pairs(positions, speeds)
+        pairs = self._candidate_pairs(positions, moving=True)
         self.timings["broad_phase"] += time.perf_counter() - t0
         stats.candidate_pairs = len(pairs)
         self._wake(pairs, speeds)
@@ -279,7 +279,7 @@ class ImplicitEulerSolver:
         """Contact forces of the current state without stepping (used for the initial frame)."""
         stats = StepStats()
         positions = [b.contact_positions() for b in self.bodies]
-        pairs = self._candidate_pairs(positions, [0.0] * len(self.bodies))
+        pairs = self._candidate_pairs(positions, moving=False)
         supported = np.zeros(len(self.bodies), dtype=bool)
         for b in self.bodies:
             b.reset_step_forces()
@@ -297,7 +297,7 @@ class ImplicitEulerSolver:
         for k, b in enumerate(self.bodies):
             pc, _, _ = static_contact(positions[k], b.radius_m, _scalar(self.stiffness(k)), self.scene)
             con += pc.energy
-        pairs = self._candidate_pairs(positions, [0.0] * len(self.bodies))
+        pairs = self._candidate_pairs(positions, moving=False)
         if len(pairs):
             oi, oj = self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]
             x_all = torch.cat(positions)
@@ -307,13 +307,29 @@ class ImplicitEulerSolver:
         return {"kinetic": kin, "elastic": ela, "contact": con, "gravity": grav}
 
     # ------------------------------------------------------------------ broad phase, islands, sleep
-    def _candidate_pairs(self, positions: list[torch.Tensor], speeds: list[float]) -> np.ndarray:
+    def _candidate_pairs(self, positions: list[torch.Tensor], moving: bool) -> np.ndarray:
+        """Sphere pairs on different objects that may touch during the coming step (``moving``) or
+        touch now, within a quarter radius (not moving: forces and energies of the current state)."""
         if len(self.bodies) < 2:
             return np.zeros((0, 2), dtype=np.int64)
         x_all = torch.cat(positions).numpy()
         r_max = float(self.radii_all.max())
-        margin = 2.0 * max(speeds) * self.h + 0.25 * r_max
-        return self.finder.find(x_all, self.point_object, self.radii_all.numpy(), margin)
+        reach = self._reach(self.h) if moving else None
+        return self.finder.find(x_all, self.point_object, self.radii_all.numpy(), 0.25 * r_max, reach)
+
+    def _reach(self, h: float) -> np.ndarray:
+        """Per contact sphere (all objects, global order): how far it may close in on another in a step of
+        h seconds, m.  Two points close in by at most h |v_i - v_j| <= h (|v_i - u| + |v_j - u|) for
+        any common velocity u; u = the mean point velocity keeps the bound tight for objects falling
+        together.  1.5 x that (velocities change within the step) plus what gravity adds."""
+        velocity = torch.cat(
+            [
+                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if b.asleep else b.contact.velocities(b.qdot)
+                for b in self.bodies
+            ]
+        )
+        relative_speed = (velocity - velocity.mean(0)).norm(dim=1).numpy()
+        return 1.5 * relative_speed * h + float(self.gravity.norm()) * h**2
 
     def _wake(self, pairs: np.ndarray, speeds: list[float]) -> None:
         if not len(pairs):
@@ -380,6 +396,14 @@ class ImplicitEulerSolver:
         swap = ~inside[inside.any(axis=1), 0]  # orient every pair so that side i is an island member
         gi = np.where(swap, sel[:, 1], sel[:, 0])
         gj = np.where(swap, sel[:, 0], sel[:, 1])
+        if len(gi) and self.h < self.dt:
+            # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
+            x_np = torch.cat(positions).numpy()
+            reach = self._reach(self.h)
+            radii = self.radii_all.numpy()
+            gap = np.linalg.norm(x_np[gi] - x_np[gj], axis=1) - radii[gi] - radii[gj]
+            near = gap < reach[gi] + reach[gj] + 0.25 * float(radii.max())
+            gi, gj = gi[near], gj[near]
         oi, oj = self.point_object[gi], self.point_object[gj]
         li, lj = gi - self.offsets[oi], gj - self.offsets[oj]
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
