@@ -314,6 +314,7 @@ class Simulator:
             [p for _, p in per_cubature],
             [x.asleep for x in b],
             solver.energies(),
+            sphere_forces=[x.contact_force_n for x in b],
         )
         solver.timings["recording"] = solver.timings.get("recording", 0.0) + time.perf_counter() - t0
 
