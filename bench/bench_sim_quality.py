@@ -116,6 +116,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="short runs and a coarser reference (minutes)")
     parser.add_argument("--scenes", nargs="*", default=list(SCENES))
     parser.add_argument("--seconds", type=float, default=None)
+    parser.add_argument("--out", default="sim_quality", help="results name: bench/results/<out>.json/.png")
     args = parser.parse_args()
     torch.set_num_threads(1)
     seconds = args.seconds or (0.6 if args.quick else 2.0)
@@ -154,9 +155,9 @@ def main() -> None:
                 flush=True,
             )
         # written after every scene, so a long run leaves its finished scenes behind
-        (RESULTS / "sim_quality.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
-    plot(rows, RESULTS / "sim_quality.png")
-    print(f"wrote {RESULTS / 'sim_quality.json'} and {RESULTS / 'sim_quality.png'}")
+        (RESULTS / f"{args.out}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    plot(rows, RESULTS / f"{args.out}.png")
+    print(f"wrote {RESULTS / args.out}.json and .png")
 
 
 def plot(rows: list[dict], path: Path) -> None:

@@ -40,6 +40,8 @@ from data_gen.assets.library import ObjectAsset, get_object, semantic_class_tabl
 from data_gen.assets.materials import get_material, material_id_table
 from data_gen.assets.scenes import StaticScene as SceneLayout
 from data_gen.assets.scenes import get_scene
+from data_gen.assets.shapes import Scaled, Shape, Shell
+from data_gen.assets.voxel_shape import VoxelShape
 from data_gen.cameras import path_from_spec
 from data_gen.render.gaussians import Gaussians
 from data_gen.render.labels import LabelRasterizer, gather_labels
@@ -122,6 +124,22 @@ def scene_layout(name: str) -> SceneLayout:
     return get_scene(name)
 
 
+def envelope_sdf(shape: Shape):
+    """SDF of a shape's outer envelope for fitting contact spheres: a closed shell's cavity counts as
+    inside (a 1 mm cardboard wall cannot hold a contact sphere of useful size, its envelope can).
+    None for a voxelised splat solid: its distance transform underestimates depth (|grad| 0.6-0.8),
+    which would shrink most spheres away (16 of 128 kept on a 10 cm splat ball); its spheres keep
+    their full radius, touching the surface at their sample."""
+    inner = shape.child if isinstance(shape, Scaled) else shape
+    if isinstance(inner, VoxelShape):
+        return None
+    if isinstance(shape, Scaled) and isinstance(shape.child, Shell):
+        return Scaled(shape.child.child, shape.scale).sdf
+    if isinstance(shape, Shell):
+        return shape.child.sdf
+    return shape.sdf
+
+
 def sim_static_scene(layout: SceneLayout) -> SimStaticScene:
     """The kinematic collision geometry of a layout: ground plane plus oriented boxes."""
     return SimStaticScene(
@@ -144,7 +162,7 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
             raise SequenceRejected("degenerate_object", f"object {p.object_id} ({p.asset}) has {len(interior)} interior points")
         # contact spheres touch this surface from inside (exact resting heights, see data_gen.sim.contact_points)
         contact_surface = SurfaceSamples.from_mesh(
-            asset.to_mesh(), settings.contact_surface_samples, seed=p.color_seed, sdf=asset.shape.sdf
+            asset.to_mesh(), settings.contact_surface_samples, seed=p.color_seed, sdf=envelope_sdf(asset.shape)
         )
         out.append(SceneObject(
             object_id=p.object_id, asset=asset, surface=surface, interior_points_m=interior, volume_m3=volume,

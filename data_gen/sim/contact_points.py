@@ -45,7 +45,9 @@ class SurfaceSamples:
         normals: (s,3) outward unit normals.
         area_m2: total surface area, m^2 (> 0); sets the contact sphere spacing.
         sdf: optional signed distance of the solid (negative inside), (n,3) m -> (n,) m; used to
-            shrink spheres in parts thinner than a sphere.
+            shrink spheres in parts thinner than a sphere.  For a hollow object pass the SDF of its
+            outer envelope (cavity counted as inside): spheres may then reach into the cavity but
+            never out of the outer surface.
     """
 
     points_m: np.ndarray
@@ -123,9 +125,12 @@ def surface_spheres(surface: SurfaceSamples, count: int, seed: int) -> tuple[np.
     if surface.sdf is not None:
         fitted = np.zeros(k, dtype=bool)
         out = radius.copy()
+        # relative to the SDF at the sample itself, so a mesh that is not exactly on the zero level set
+        # (marching cubes of a voxel solid) is judged by the level set through its own samples
+        level = np.asarray(surface.sdf(pts))
         for factor in _SHRINK_FACTORS:  # loop over a few candidate radii, vectorised over spheres
             s = radius * factor
-            fits = ~fitted & (np.asarray(surface.sdf(pts - s[:, None] * nrm)) <= -_FIT_MARGIN * s)
+            fits = ~fitted & (np.asarray(surface.sdf(pts - s[:, None] * nrm)) <= level - _FIT_MARGIN * s)
             out[fits] = s[fits]
             fitted |= fits
         if fitted.sum() >= 4:  # samples within a few % of a sphere radius from an edge: their neighbours cover them

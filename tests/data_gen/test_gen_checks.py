@@ -47,3 +47,23 @@ def test_non_finite_and_tunnelling_are_rejected(resting_box, plant, reason):
     with pytest.raises(SequenceRejected) as err:
         check_simulation(bad, [MATERIAL])
     assert err.value.reason == reason
+
+
+def test_hollow_objects_get_contact_spheres_inside_their_envelope():
+    """A cardboard box is a closed 1 mm shell: fitted against the wall itself no sphere of useful size
+    fits (all 128 kept their 25.6 mm radius and poked out); against the envelope they touch the outside."""
+    from data_gen.assets.library import get_object
+    from data_gen.pipeline import envelope_sdf
+    from data_gen.sim.contact_points import SurfaceSamples, surface_spheres
+
+    asset = get_object("cardboard_box")
+    assert asset.is_hollow
+    envelope = envelope_sdf(asset.shape)
+    mesh = asset.to_mesh()
+    surface = SurfaceSamples.from_mesh(mesh, 4000, seed=0, sdf=envelope)
+    centres, radii = surface_spheres(surface, 128, seed=0)
+    assert len(radii) > 100
+    assert np.all(envelope(centres) <= -0.999 * radii + 1e-9)
+    assert np.median(radii) == pytest.approx(0.5 * np.sqrt(mesh.area / 128), rel=1e-9)
+    assert (centres[:, 2] - radii).min() == pytest.approx(mesh.bounds[0, 2], abs=1e-4)  # rests on its true bottom
+    assert asset.shape.sdf(centres).max() > 0.005  # most of each sphere lies in the cavity, as intended
