@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from data_gen.pipeline import RenderSettings, generate_sequence
+from data_gen.pipeline import RenderSettings, SequenceRejected, generate_sequence
 from data_gen.scene import ScenarioConfig, sample_scenario
 from data_gen.sim.presets import load_preset
 from newtphys.shards import ShardWriter
@@ -37,13 +37,23 @@ def main() -> None:
                          camera_distance_m=(0.9, 1.1))
     settings = RenderSettings()
     rows = []
+    rejected: list[dict] = []
     for preset_name in args.presets.split(","):
         preset = load_preset(preset_name)
         totals: dict[str, list[float]] = {}
-        for rep in range(reps):
-            scenario = sample_scenario(cfg, f"bench-{rep:06d}", 1000 + rep, "train", "earth", frames, 25.0, (size, size))
+        rep, attempt = 0, 0
+        while rep < reps:  # a rejected draw (as in generate.py) is logged and replaced by the next seed
+            scenario = sample_scenario(cfg, f"bench-{rep:06d}", 1000 + rep + 100 * attempt, "train", "earth", frames,
+                                       25.0, (size, size))
             t0 = time.perf_counter()
-            seq, timings = generate_sequence(scenario, preset, settings)
+            try:
+                seq, timings = generate_sequence(scenario, preset, settings)
+            except SequenceRejected as err:
+                print(f"{preset_name}: scenario {rep} attempt {attempt} rejected: {err}")
+                rejected.append({"preset": preset_name, "scenario": rep, "attempt": attempt, "reason": str(err)})
+                attempt += 1
+                continue
+            rep, attempt = rep + 1, 0
             timings["total_s"] = time.perf_counter() - t0
             with tempfile.TemporaryDirectory() as tmp:
                 t1 = time.perf_counter()
@@ -64,7 +74,8 @@ def main() -> None:
     out = ROOT / "bench" / "results" / "generate.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"objects": n_obj, "frames": frames, "image_size": size, "reps": reps,
-                               "seconds_per_sequence": dict(rows), "baseline": rows[0][0]}, indent=1))
+                               "seconds_per_sequence": dict(rows), "baseline": rows[0][0],
+                               "rejected": rejected}, indent=1))
     print(f"wrote {out}")
 
 
