@@ -60,7 +60,13 @@ CHAOS_SHIFT_M = 1e-4  # initial position shift of the chaos-floor run
 
 
 def run_one(
-    scene_name: str, preset: QualityPreset, seconds: float, training, seed: int = 0, shift_m: float = 0.0
+    scene_name: str,
+    preset: QualityPreset,
+    seconds: float,
+    training,
+    seed: int = 0,
+    shift_m: float = 0.0,
+    label: str | None = None,
 ) -> dict:
     scene, specs = SCENES[scene_name](training)
     if shift_m:
@@ -77,7 +83,7 @@ def run_one(
     )
     return {
         "scene": scene_name,
-        "preset": preset.name + (f"+{shift_m * 1e3:g}mm" if shift_m else ""),
+        "preset": label or preset.name,
         "seconds": seconds,
         "setup_s": setup,
         "wall_s": result.info.wall_time_s,
@@ -138,9 +144,12 @@ def main() -> None:
     for scene_name in args.scenes:
         runs = {name: run_one(scene_name, preset, seconds, training) for name, preset in presets.items()}
         floor_name = f"reference+{CHAOS_SHIFT_M * 1e3:g}mm"
-        runs[floor_name] = run_one(scene_name, presets["reference"], seconds, training, shift_m=CHAOS_SHIFT_M)
-        runs["reference_seed1"] = run_one(scene_name, presets["reference"], seconds, training, seed=1)
-        runs["reference_seed1"]["preset"] = "reference_seed1"
+        runs[floor_name] = run_one(
+            scene_name, presets["reference"], seconds, training, shift_m=CHAOS_SHIFT_M, label=floor_name
+        )
+        runs["reference_seed1"] = run_one(
+            scene_name, presets["reference"], seconds, training, seed=1, label="reference_seed1"
+        )
         for name in PRESETS + [floor_name, "reference_seed1"]:
             row = {k: v for k, v in runs[name].items() if not k.startswith("_")}
             row.update(compare(runs[name], runs["reference"]))

@@ -110,7 +110,7 @@ def sphere_surface(radius_m: float, count: int, seed: int) -> SurfaceSamples:
     )
 
 
-def surface_spheres(surface: SurfaceSamples, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def surface_spheres(surface: SurfaceSamples, count: int) -> tuple[np.ndarray, np.ndarray]:
     """Centres (k,3) m and radii (k,) m of up to ``min(count, s)`` spheres touching the surface from inside.
 
     With an SDF, samples where even a sphere of 5 % of the radius pokes out of the solid (right at an

@@ -245,15 +245,12 @@ class FrameRecorder:
         contact sphere, when given, set the stress of single-handle (near-rigid) objects, see
         :func:`rigid_mean_hydrostatic_pa`."""
         for k, model in enumerate(self.models):
-            frame = _object_frame(model, qs[k], qdots[k], forces[k], partners[k], asleep[k], self.gravity)
-            sphere_x = self.contacts[k].positions(qs[k])
-            frame["contact_positions_m"] = sphere_x.numpy()
-            if sphere_forces is not None and model.num_handles == 1:
-                mean = rigid_mean_hydrostatic_pa(
-                    model, qs[k], qdots[k], sphere_x, self.contacts[k].radius_m, sphere_forces[k]
+            self.frames[k].append(
+                _object_frame(
+                    model, self.contacts[k], qs[k], qdots[k], forces[k], partners[k], asleep[k], self.gravity,
+                    None if sphere_forces is None else sphere_forces[k],
                 )
-                frame["hydrostatic_stress_pa"] = np.full(model.num_points, mean)
-            self.frames[k].append(frame)
+            )
         for key, value in energies.items():
             self.energies[key].append(value)
 
@@ -280,28 +277,39 @@ class FrameRecorder:
 
 def _object_frame(
     model: ReducedObject,
+    contact: ContactPoints,
     q: torch.Tensor,
     qdot: torch.Tensor,
     force: torch.Tensor,
     partner: torch.Tensor,
     asleep: bool,
     gravity: torch.Tensor,
+    sphere_force: torch.Tensor | None,
 ) -> dict:
     x = model.positions(q)
     F = model.deformation_gradients(q)
+    sphere_x = contact.positions(q)
     # rigid-body quantities from the inertia particles (all of them when the model has them)
     xp = model.mass_points_rest + model.mass_b @ q.reshape(3, -1).T
     vp = model.mass_b @ qdot.reshape(3, -1).T
     mp = model.particle_masses_kg
     com = (mp[:, None] * xp).sum(0) / model.mass_kg
     vcom = (mp[:, None] * vp).sum(0) / model.mass_kg
+    if sphere_force is not None and model.num_handles == 1:
+        mean = rigid_mean_hydrostatic_pa(
+            float(model.volumes_m3.sum()), com, mp, vp - vcom, sphere_x, contact.radius_m, sphere_force
+        )
+        stress = np.full(model.num_points, mean)
+    else:
+        stress = model.cauchy_hydrostatic(q).numpy()
     return {
         "handle_transforms": q_to_z(q).numpy(),
         "cubature_positions_m": x.numpy(),
+        "contact_positions_m": sphere_x.numpy(),
         "gravity_force_n": (model.masses_kg[:, None] * gravity[None, :]).numpy(),
         "contact_force_n": force.numpy().copy(),
         "contact_partner": partner.numpy().copy(),
-        "hydrostatic_stress_pa": model.cauchy_hydrostatic(q).numpy(),
+        "hydrostatic_stress_pa": stress,
         "det_f": torch.linalg.det(F).numpy(),
         "com_m": com.numpy(),
         "orientation_wxyz": best_fit_rotation_wxyz(model.mass_points_rest, xp, mp),
@@ -312,9 +320,10 @@ def _object_frame(
 
 
 def rigid_mean_hydrostatic_pa(
-    model: ReducedObject,
-    q: torch.Tensor,
-    qdot: torch.Tensor,
+    volume_m3: float,
+    com_m: torch.Tensor,
+    particle_masses_kg: torch.Tensor,
+    particle_rel_velocity_m_s: torch.Tensor,
     sphere_x: torch.Tensor,
     sphere_r: torch.Tensor,
     sphere_f: torch.Tensor,
@@ -323,7 +332,8 @@ def rigid_mean_hydrostatic_pa(
     the forces acting on it (the mean stress theorem), not from its (tiny, solver-limited) strain.
 
     For a body of volume V with contact forces f_s acting at x_s (the point of sphere s that faces the
-    force: centre - radius * f_s / |f_s|), centre of mass c, particle velocities v_p:
+    force: centre - radius * f_s / |f_s|), centre of mass c, particle velocities v_p relative to the
+    centre of mass's:
     ``tr(mean sigma) / 3 = (sum_s (x_s - c) . f_s + sum_p m_p |v_p - v_c|^2) / (3 V)``; the second sum
     is twice the rotational kinetic energy (centrifugal tension); gravity, uniform, adds nothing about
     the centre of mass.  A block of height L resting on a face gets ``-rho g L / 6``.  A single
@@ -331,16 +341,11 @@ def rigid_mean_hydrostatic_pa(
     other hand, is E / (rho g L) times more sensitive to the Newton tolerance than the motion (a
     10 GPa block kept a spurious 1e5 Pa with the draft tolerance; measured).
     """
-    xp = model.mass_points_rest + model.mass_b @ q.reshape(3, -1).T
-    vp = model.mass_b @ qdot.reshape(3, -1).T
-    mp = model.particle_masses_kg
-    com = (mp[:, None] * xp).sum(0) / model.mass_kg
-    vcom = (mp[:, None] * vp).sum(0) / model.mass_kg
     magnitude = sphere_f.norm(dim=1, keepdim=True)
     where = sphere_x - sphere_r[:, None] * sphere_f / magnitude.clamp(min=1e-300)
-    virial = float(((where - com) * sphere_f).sum())
-    spin = float((mp * ((vp - vcom) ** 2).sum(1)).sum())
-    return (virial + spin) / (3.0 * float(model.volumes_m3.sum()))
+    virial = float(((where - com_m) * sphere_f).sum())
+    spin = float((particle_masses_kg * (particle_rel_velocity_m_s**2).sum(1)).sum())
+    return (virial + spin) / (3.0 * volume_m3)
 
 
 def best_fit_rotation_wxyz(

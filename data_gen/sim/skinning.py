@@ -511,21 +511,27 @@ def perturbation_energy(
     Args:
         weights (n, H), grads (n, H, 3) in 1/m, points (n, 3) in m, H >= 2.
     """
-    if weights.shape[1] < 2:
-        raise ValueError(f"weights has {weights.shape[1]} columns; allowed: >= 2 (constant + learned)")
-    center, _, longest = normalised_frame(points)
-    y = (points - center) / longest
-    g = grads * longest
-    n = weights.shape[0]
-    mix = _orthonormalising_mix(weights.T @ weights / n, ridge=0.0)
+    y, longest, mix = _normalised_orthonormal_mix(weights, points)
     w_orth = weights @ mix
-    g_orth = torch.einsum("nhk,hm->nmk", g, mix)
+    g_orth = torch.einsum("nhk,hm->nmk", grads * longest, mix)
     gen = torch.Generator().manual_seed(seed)
     t = scale * torch.randn(num_perturbations, weights.shape[1], 3, 4, generator=gen, dtype=_DTYPE)
     t[:, 0] = 0.0
     F = deformation_gradients(w_orth, g_orth, y, t).reshape(-1, 3, 3)
     mu, lam = lame_parameters(1.0, poisson_ratio)
     return float(energy_density(F, mu, lam).mean()) / scale**2
+
+
+def _normalised_orthonormal_mix(
+    weights: torch.Tensor, points: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Shared set-up of the two energy measures: points in the normalised frame y (n, 3) (longest side
+    = 1), the longest side (m), and the (H, H) mix that makes the columns orthonormal (column 0 kept)."""
+    if weights.shape[1] < 2:
+        raise ValueError(f"weights has {weights.shape[1]} columns; allowed: >= 2 (constant + learned)")
+    center, _, longest = normalised_frame(points)
+    mix = _orthonormalising_mix(weights.T @ weights / weights.shape[0], ridge=0.0)
+    return (points - center) / longest, longest, mix
 
 
 def expected_perturbation_energy(
@@ -539,12 +545,7 @@ def expected_perturbation_energy(
     Args:
         weights (n, H), grads (n, H, 3) in 1/m, points (n, 3) in m, H >= 2.
     """
-    if weights.shape[1] < 2:
-        raise ValueError(f"weights has {weights.shape[1]} columns; allowed: >= 2 (constant + learned)")
-    center, _, longest = normalised_frame(points)
-    y = (points - center) / longest
-    n = weights.shape[0]
-    mix = _orthonormalising_mix(weights.T @ weights / n, ridge=0.0)
+    y, longest, mix = _normalised_orthonormal_mix(weights, points)
     form = mix.T @ _energy_form(weights, grads * longest, y) @ mix
     return _energy_scale(poisson_ratio) * float(torch.trace(form[1:, 1:]))
 

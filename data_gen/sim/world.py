@@ -177,7 +177,7 @@ class Simulator:
         if spec.surface is None:
             contact = ContactPoints.build(cub_pos, radius, weights, cub_pos)
         else:
-            centres, radii = surface_spheres(spec.surface, self.preset.num_contact_points, seed)
+            centres, radii = surface_spheres(spec.surface, self.preset.num_contact_points)
             contact = ContactPoints.build(centres, radii, basis.evaluate(torch.from_numpy(centres))[0], cub_pos)
         omega = np.asarray(spec.angular_velocity_rad_s, dtype=np.float64)
         vel = np.asarray(spec.velocity_m_s, dtype=np.float64)

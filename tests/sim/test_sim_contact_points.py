@@ -32,7 +32,7 @@ def origin_height(track, frame):
 
 def test_spheres_are_inside_and_touch_the_surface():
     surface = box_surface(HALF, 4000, seed=1)
-    centres, radii = surface_spheres(surface, 256, seed=0)
+    centres, radii = surface_spheres(surface, 256)
     sdf = surface.sdf(centres)
     assert np.all(sdf <= -0.999 * radii + 1e-12)  # inside the solid
     touching = np.abs(sdf + radii) < 1e-9  # outermost point on the surface
@@ -45,7 +45,7 @@ def test_spheres_are_inside_and_touch_the_surface():
 def test_thin_plate_spheres_fit_the_thickness():
     half = (0.1, 0.1, 0.004)  # 8 mm plate: the unshrunk radius would be 0.5 sqrt(A / 128) = 9 mm
     surface = box_surface(half, 4000, seed=2)
-    centres, radii = surface_spheres(surface, 128, seed=0)
+    centres, radii = surface_spheres(surface, 128)
     assert 0.5 * np.sqrt(surface.area_m2 / 128) > 2 * half[2]
     assert radii.max() <= half[2] + 1e-12
     assert np.all(surface.sdf(centres) <= -0.999 * radii + 1e-12)
@@ -53,7 +53,7 @@ def test_thin_plate_spheres_fit_the_thickness():
 
 def test_sphere_surface_spheres_are_concentric_shells():
     surface = sphere_surface(0.07, 2000, seed=3)
-    centres, radii = surface_spheres(surface, 128, seed=0)
+    centres, radii = surface_spheres(surface, 128)
     np.testing.assert_allclose(np.linalg.norm(centres, axis=1) + radii, 0.07, atol=1e-12)
 
 
