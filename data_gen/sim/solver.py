@@ -43,6 +43,9 @@ SCENE_REACH_RADII = 2.0
 # past its reach gets up to this many sub-steps instead (counted as ``substep_cap_raised``).
 HARD_SUBSTEP_LIMIT = 64
 _ARMIJO_C = 1e-4
+# After the preset's Armijo halvings fail, keep halving up to this many more times for any decrease
+# (a failed search leaves the island at its last accepted iterate).
+_EXTRA_HALVINGS = 20
 
 
 class SimulationError(RuntimeError):
@@ -192,6 +195,8 @@ class ImplicitEulerSolver:
                 "island_solves",
                 "island_object_solves",
                 "substep_cap_raised",
+                "trust_limited_steps",
+                "line_search_extended",
             ),
             0,
         )
@@ -497,6 +502,15 @@ class ImplicitEulerSolver:
             return value, grad, hess
 
         q = q_n + h * torch.cat([b.qdot for b in bodies])
+        # Trust region on point motion: one Newton update moves no contact sphere further than twice the
+        # step's predicted motion plus a median contact radius.  An affine handle linearises rotations, so
+        # a thin stiff object (tiny inertia about its long axis, elastic curvature ~0 along rotations) can
+        # get Newton updates of metres that a plain backtracking search cannot shrink enough.
+        trust_m = (
+            2.0 * _max_point_motion(bodies, offs, q - q_n)
+            + h * h * float(self.gravity.norm())
+            + min(float(b.radius_m.median()) for b in bodies)
+        )
         iterations = 0
         for it in range(self.preset.newton_iterations):
             value, grad, hess = evaluate(q, True)
@@ -514,11 +528,19 @@ class ImplicitEulerSolver:
                 )
             iterations = it + 1
             slope = float(grad @ dq)
-            alpha, accepted = 1.0, False
-            for _ in range(self.preset.line_search_steps):
+            alpha = min(1.0, trust_m / max(_max_point_motion(bodies, offs, dq), 1e-300))
+            if alpha < 1.0:
+                self.counters["trust_limited_steps"] += 1
+            accepted = False
+            for trial_index in range(self.preset.line_search_steps + _EXTRA_HALVINGS):
                 trial, _, _ = evaluate(q + alpha * dq, False)
-                if np.isfinite(trial) and trial <= value + _ARMIJO_C * alpha * slope + 1e-14 * abs(value):
-                    accepted = True
+                if trial_index < self.preset.line_search_steps:
+                    accepted = trial <= value + _ARMIJO_C * alpha * slope + 1e-14 * abs(value)
+                else:  # Armijo failed within the preset's budget: any decrease beats standing still
+                    accepted = trial < value
+                if accepted:
+                    if trial_index >= self.preset.line_search_steps:
+                        self.counters["line_search_extended"] += 1
                     break
                 alpha *= 0.5
             if not accepted:
@@ -719,6 +741,13 @@ class ImplicitEulerSolver:
                 total, nrm = -total, -nrm
             key = (min(ba.object_id, bc.object_id), max(ba.object_id, bc.object_id))
             stats.add_pair_force(key, total, pos, nrm / max(float(np.linalg.norm(nrm)), 1e-300), self.h)
+
+
+def _max_point_motion(bodies: list[SimBody], offsets: np.ndarray, dq: torch.Tensor) -> float:
+    """Largest contact-sphere displacement (m) of the island's objects under a state change dq."""
+    return max(
+        float(b.contact.velocities(dq[offsets[a] : offsets[a + 1]]).norm(dim=1).max()) for a, b in enumerate(bodies)
+    )
 
 
 def _assign_partner(body: SimBody, local: torch.Tensor, magnitude: torch.Tensor, partner_id: int) -> None:
