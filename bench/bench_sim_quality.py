@@ -11,8 +11,14 @@ reference runs measure how well the outcome is determined at all:
 * ``reference+0.1mm``: every object's initial position shifted by 0.1 mm (sensitivity to the state);
 * ``reference_seed1``: the same preset with another seed, i.e. other cubature points and another
   training run of each skinning basis (sensitivity to the discretisation at the reference's own
-  resolution; the contact spheres are the same, farthest-point sampling is deterministic).
+  resolution; the contact spheres are the same, farthest-point sampling is deterministic);
+* ``reference_contact+25%``: the reference with 25 % more contact spheres (sensitivity to the contact
+  geometry: spheres of radius r round edges and corners by about r, and where a tumbling object lands
+  on an edge decides its bounce).
 A preset whose error is near these floors is as accurate as the scene allows this comparison to show.
+
+Scenes with several variants (``SCENE_VARIANTS``: the rigid drop is repeated with 5 spins and
+orientations) report the mean over variants, with the per-variant errors in the JSON.
 
     python bench/bench_sim_quality.py            # full: 2 s per scene, every preset
     python bench/bench_sim_quality.py --quick    # a few minutes on 2 CPU cores (shorter, coarser reference)
@@ -31,7 +37,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sim_bench_scenes import QUICK_TRAINING, SCENES  # noqa: E402
+from sim_bench_scenes import QUICK_TRAINING, SCENE_VARIANTS, SCENES  # noqa: E402
 
 from data_gen.sim.presets import QualityPreset, load_preset  # noqa: E402
 from data_gen.sim.reduced import deform  # noqa: E402
@@ -57,6 +63,8 @@ def probe_positions(result, specs, num_probe: int = 200) -> np.ndarray:
 
 
 CHAOS_SHIFT_M = 1e-4  # initial position shift of the chaos-floor run
+CONTACT_FLOOR_FACTOR = 1.25  # contact-sphere count factor of the contact-geometry floor run
+MEAN_KEYS = ("com_rms_m", "com_rms_rel_travelled", "point_rms_m", "point_rms_rel_motion")
 
 
 def run_one(
@@ -67,8 +75,9 @@ def run_one(
     seed: int = 0,
     shift_m: float = 0.0,
     label: str | None = None,
+    variant: int = 0,
 ) -> dict:
-    scene, specs = SCENES[scene_name](training)
+    scene, specs = SCENES[scene_name](training, variant)
     if shift_m:
         specs = [
             dataclasses.replace(s, position_m=tuple(np.asarray(s.position_m) + (shift_m, 0.0, 0.0))) for s in specs
@@ -94,6 +103,8 @@ def run_one(
         "max_ground_penetration_m": max(0.0, penetration),
         "contact_radius_m": float(min(tr.contact_radius_m.min() for tr in result.objects)),
         "events": len(result.collisions),
+        "island_solves": result.info.counters["island_solves"],
+        "unconverged_solves": result.info.counters["unconverged_solves"],
         "timings_s": result.info.timings_s,
         "_com": com,
         "_probe": probe_positions(result, specs),
@@ -141,32 +152,77 @@ def main() -> None:
         "note": "wall times on a shared 2-core CPU",
     }
     rows = []
+    ref = presets["reference"]
+    floor_name = f"reference+{CHAOS_SHIFT_M * 1e3:g}mm"
+    contact_name = f"reference_contact+{round(100 * (CONTACT_FLOOR_FACTOR - 1))}%"
+    contact_ref = ref.replace(num_contact_points=int(round(CONTACT_FLOOR_FACTOR * ref.num_contact_points)))
     for scene_name in args.scenes:
-        runs = {name: run_one(scene_name, preset, seconds, training) for name, preset in presets.items()}
-        floor_name = f"reference+{CHAOS_SHIFT_M * 1e3:g}mm"
-        runs[floor_name] = run_one(
-            scene_name, presets["reference"], seconds, training, shift_m=CHAOS_SHIFT_M, label=floor_name
-        )
-        runs["reference_seed1"] = run_one(
-            scene_name, presets["reference"], seconds, training, seed=1, label="reference_seed1"
-        )
-        for name in PRESETS + [floor_name, "reference_seed1"]:
-            row = {k: v for k, v in runs[name].items() if not k.startswith("_")}
-            row.update(compare(runs[name], runs["reference"]))
-            row["speedup_vs_reference"] = runs["reference"]["wall_s"] / runs[name]["wall_s"]
+        per_variant: dict[str, list[dict]] = {}
+        for variant in range(SCENE_VARIANTS[scene_name]):
+            runs = {
+                name: run_one(scene_name, preset, seconds, training, variant=variant)
+                for name, preset in presets.items()
+            }
+            runs[floor_name] = run_one(
+                scene_name, ref, seconds, training, shift_m=CHAOS_SHIFT_M, label=floor_name, variant=variant
+            )
+            runs["reference_seed1"] = run_one(
+                scene_name, ref, seconds, training, seed=1, label="reference_seed1", variant=variant
+            )
+            runs[contact_name] = run_one(scene_name, contact_ref, seconds, training, label=contact_name, variant=variant)
+            for name, run in runs.items():
+                row = {k: v for k, v in run.items() if not k.startswith("_")}
+                row.update(compare(run, runs["reference"]))
+                row["speedup_vs_reference"] = runs["reference"]["wall_s"] / run["wall_s"]
+                per_variant.setdefault(name, []).append(row)
+        merged = {name: _mean_over_variants(variant_rows) for name, variant_rows in per_variant.items()}
+        for name in PRESETS + [floor_name, "reference_seed1", contact_name]:
+            row = merged[name]
+            row["speedup_vs_reference"] = merged["reference"]["wall_s"] / row["wall_s"]
             rows.append(row)
             print(
                 f"{scene_name:14s} {name:17s} wall/sim-s {row['wall_per_sim_s']:8.2f} s  "
                 f"x{row['speedup_vs_reference']:6.1f} vs ref  COM err {100 * row['com_rms_rel_travelled']:6.2f} % "
                 f"({row['com_rms_m'] * 1e3:7.2f} mm)  point err {100 * row['point_rms_rel_motion']:6.2f} %  "
                 f"pen {row['max_ground_penetration_m'] * 1e3:6.2f} mm (r {row['contact_radius_m'] * 1e3:5.1f})  "
-                f"newton {row['newton_iterations']:5d}  setup {row['setup_s']:6.1f} s",
+                f"newton {row['newton_iterations']:5d} (unconverged {row['unconverged_solves']}/"
+                f"{row['island_solves']})  setup {row['setup_s']:6.1f} s",
                 flush=True,
             )
         # written after every scene, so a long run leaves its finished scenes behind
         (RESULTS / f"{args.out}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
     plot(rows, RESULTS / f"{args.out}.png")
     print(f"wrote {RESULTS / args.out}.json and .png")
+
+
+def _mean_over_variants(variant_rows: list[dict]) -> dict:
+    """One row for a preset on a scene: wall times summed over variants (so per-sim-s figures and the
+    speed-up stay ratios of totals), errors averaged, maxima kept, per-variant errors listed."""
+    row = dict(variant_rows[0])
+    if len(variant_rows) == 1:
+        return row
+    total = sum(r["wall_s"] for r in variant_rows)
+    seconds = sum(r["seconds"] for r in variant_rows)
+    row.update(
+        variants=len(variant_rows),
+        seconds=seconds,
+        wall_s=total,
+        wall_per_sim_s=total / seconds,
+        setup_s=sum(r["setup_s"] for r in variant_rows),
+        newton_iterations=sum(r["newton_iterations"] for r in variant_rows),
+        steps=sum(r["steps"] for r in variant_rows),
+        events=sum(r["events"] for r in variant_rows),
+        island_solves=sum(r["island_solves"] for r in variant_rows),
+        unconverged_solves=sum(r["unconverged_solves"] for r in variant_rows),
+        max_ground_penetration_m=max(r["max_ground_penetration_m"] for r in variant_rows),
+        contact_radius_m=min(r["contact_radius_m"] for r in variant_rows),
+        awake_fraction=float(np.mean([r["awake_fraction"] for r in variant_rows])),
+        timings_s={k: sum(r["timings_s"].get(k, 0.0) for r in variant_rows) for k in variant_rows[0]["timings_s"]},
+    )
+    for key in MEAN_KEYS:
+        row[key] = float(np.mean([r[key] for r in variant_rows]))
+        row[f"{key}_per_variant"] = [r[key] for r in variant_rows]
+    return row
 
 
 def plot(rows: list[dict], path: Path) -> None:
@@ -188,18 +244,24 @@ def plot(rows: list[dict], path: Path) -> None:
             ax.annotate(
                 r["preset"], (r["wall_per_sim_s"], 100 * max(r["com_rms_rel_travelled"], 1e-6)), fontsize=7
             )
-        floor = [r for r in rows if r["scene"] == scene and r["preset"] == "reference_seed1"]
-        if floor:
-            ax.axhline(
-                100 * max(floor[0]["com_rms_rel_travelled"], 1e-6), color=line.get_color(), lw=0.8, ls=":"
-            )
+        floors = [
+            r["com_rms_rel_travelled"]
+            for r in rows
+            if r["scene"] == scene and (r["preset"] == "reference_seed1" or r["preset"].startswith("reference_contact"))
+        ]
+        if floors:  # the larger of the discretisation floors (seed, contact geometry)
+            ax.axhline(100 * max(max(floors), 1e-6), color=line.get_color(), lw=0.8, ls=":")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("wall time per simulated second (s, 1 CPU thread)")
     ax.set_ylabel("COM RMS error vs reference (% of distance travelled)")
     ax.axhline(5.0, color="grey", lw=0.8, ls="--", label="5 % target")
     ax.legend()
-    ax.set_title("Speed vs accuracy per preset (dotted: reference vs reference with seed 1)", fontsize=9)
+    ax.set_title(
+        "Speed vs accuracy per preset (dotted: reference vs itself with another seed or\n25 % more contact "
+        "spheres, the larger; rigid drop: mean of 5 drops)",
+        fontsize=8,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

@@ -76,24 +76,32 @@ def _ball(
     )
 
 
-def rigid_drop(training: SkinningTrainingSettings | None = None) -> tuple[StaticScene, list[SimObjectSpec]]:
-    """One stiff box dropped, tilted and spinning, from 0.6 m onto the ground."""
+def rigid_drop(
+    training: SkinningTrainingSettings | None = None, variant: int = 0
+) -> tuple[StaticScene, list[SimObjectSpec]]:
+    """One stiff box dropped, tilted and spinning, from 0.6 m onto the ground.
+
+    ``variant`` 0 is the hand-placed drop; variant k > 0 draws the spin (rad/s, N(0, 2^2) per axis) and a
+    uniformly random orientation from seed k.  Where a tumbling box lands on an edge or corner decides its
+    bounce, so the bench averages errors over several variants instead of trusting one drop."""
+    spin, quat = (1.0, 2.0, 0.5), (0.96, 0.2, 0.1, 0.0)
+    if variant:
+        rng = np.random.default_rng(variant)
+        spin = tuple(float(v) for v in rng.normal(0.0, 2.0, 3))
+        q = rng.normal(size=4)
+        quat = tuple(float(v) for v in q / np.linalg.norm(q))
     return StaticScene(), [
-        _box(
-            "crate",
-            (0.1, 0.08, 0.06),
-            1e9,
-            (0.0, 0.0, 0.6),
-            spin=(1.0, 2.0, 0.5),
-            quat=(0.96, 0.2, 0.1, 0.0),
-            seed=1,
-            training=training,
-        )
+        _box("crate", (0.1, 0.08, 0.06), 1e9, (0.0, 0.0, 0.6), spin=spin, quat=quat, seed=1, training=training)
     ]
 
 
-def mixed_five(training: SkinningTrainingSettings | None = None) -> tuple[StaticScene, list[SimObjectSpec]]:
-    """Five objects (two soft, three stiff) thrown at each other over the ground, next to a static box."""
+def mixed_five(
+    training: SkinningTrainingSettings | None = None, variant: int = 0
+) -> tuple[StaticScene, list[SimObjectSpec]]:
+    """Five objects (two soft, three stiff) thrown at each other over the ground, next to a static box.
+    (One placement: ``variant`` must be 0.)"""
+    if variant:
+        raise ValueError(f"mixed_five has one variant; got variant={variant}")
     scene = StaticScene(boxes=(StaticBox((0.0, 0.6, 0.15), (0.5, 0.1, 0.15)),))
     return scene, [
         _box(
@@ -129,9 +137,12 @@ def mixed_five(training: SkinningTrainingSettings | None = None) -> tuple[Static
 
 
 def soft_pile_ten(
-    training: SkinningTrainingSettings | None = None,
+    training: SkinningTrainingSettings | None = None, variant: int = 0
 ) -> tuple[StaticScene, list[SimObjectSpec]]:
-    """Ten identical soft boxes dropped in a staggered column: they pile up on the ground."""
+    """Ten identical soft boxes dropped in a staggered column: they pile up on the ground.
+    (One placement: ``variant`` must be 0.)"""
+    if variant:
+        raise ValueError(f"soft_pile_ten has one variant; got variant={variant}")
     objs = []
     for k in range(10):
         x = 0.05 * ((k % 3) - 1)
@@ -143,3 +154,5 @@ def soft_pile_ten(
 
 
 SCENES = {"rigid_drop": rigid_drop, "mixed_five": mixed_five, "soft_pile_ten": soft_pile_ten}
+# How many variants of each scene the quality bench averages over (cheap scenes get more).
+SCENE_VARIANTS = {"rigid_drop": 5, "mixed_five": 1, "soft_pile_ten": 1}

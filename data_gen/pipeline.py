@@ -53,7 +53,7 @@ from data_gen.sim.presets import QualityPreset
 from data_gen.sim.recording import SimulationResult
 from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_from_tmat, displacement_from_tmat, tmat_from_z
 from data_gen.sim.solver import SimulationError
-from data_gen.sim.static_scene import StaticBox
+from data_gen.sim.static_scene import StaticBox, StaticPoints
 from data_gen.sim.static_scene import StaticScene as SimStaticScene
 from data_gen.sim.threads import torch_threads
 from data_gen.sim.world import SimObjectSpec, Simulator
@@ -141,10 +141,15 @@ def envelope_sdf(shape: Shape):
 
 
 def sim_static_scene(layout: SceneLayout) -> SimStaticScene:
-    """The kinematic collision geometry of a layout: ground plane plus oriented boxes."""
+    """The kinematic collision geometry of a layout: ground plane, oriented boxes and (captured scenes)
+    the collision points of the captured geometry."""
+    points = None
+    if layout.collision_points_m is not None:
+        points = StaticPoints(layout.collision_points_m, layout.collision_radius_m)
     return SimStaticScene(
         ground=True,
         boxes=tuple(StaticBox(tuple(b.center_m), tuple(b.half_extents_m), tuple(b.rotation_wxyz)) for b in layout.boxes),
+        points=points,
     )
 
 

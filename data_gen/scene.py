@@ -206,6 +206,8 @@ def sample_scenario(
             support_z = float(region.min_m[2])
             clearance = 0.005 if motion == "push" else _uniform(rng_obj, cfg.drop_height_m)
             p[2] = support_z + radius + clearance
+            if scene.collision_points_m is not None:  # captured furniture: drop from above what is below
+                p[2] = max(p[2], scene.support_height(p, radius) + radius + clearance)
             ok = all(np.linalg.norm(p - c) > radius + r for c, r in placed)
             ok = ok and float(scene.sdf(p[None])[0]) > radius
             if ok:

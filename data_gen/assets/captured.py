@@ -2,7 +2,7 @@
 
 Reference syntax (``scenes.get_scene`` forwards it)::
 
-    ply:<path>?up=<axis>&scale=<factor>&ground=<auto|keep>&material=<name>
+    ply:<path>?up=<axis>&scale=<factor>&ground=<auto|keep>&material=<name>&collide=<splats|floor>&thickness=<m>
 
 * ``up`` — the file's up axis (z, y, -y, x, -x, -z; default z), rotated to +z;
   ``scale`` — file units to metres (default 1);
@@ -12,12 +12,22 @@ Reference syntax (``scenes.get_scene`` forwards it)::
   ``keep`` leaves z as in the file (after up/scale);
 * ``material`` — the floor's material class (default ``ceramic``).
 
-Collision: only the ground plane z = 0 is collidable. The captured geometry
-itself (furniture, walls in the capture) is NOT collidable yet: the scene has no
-boxes, so objects pass through captured furniture. One placement region
-("footprint") is set above the floor, centred on the splats' footprint (the
-2nd-98th percentile box of the centres' x, y), half as wide as that box but at
-most ``MAX_REGION_HALF_M`` per side, from 0.1 to 0.9 m above the floor.
+* ``collide`` — ``splats`` (default): the captured geometry collides, as the union
+  of balls around the splat centres (see below); ``floor``: only the ground plane.
+* ``thickness`` — the balls' radius, m (default: 0.75 x the median spacing of the
+  collision samples, clipped to [``MIN_THICKNESS_M``, ``MAX_THICKNESS_M``]).
+
+Collision: the ground plane z = 0, plus (``collide=splats``) the captured geometry
+known by its splat centres (opacity >= ``MIN_OPACITY``) above the floor band
+(z > max(2 x thickness, ``FLOOR_BAND_M``): the plane already is the floor, and
+capture noise on it would make it bumpy).  The centres are thinned to one per
+voxel of edge ``thickness``; neighbours are then at most sqrt(3) thickness apart,
+so balls of radius ``thickness`` close the surface.  Objects rest ``thickness``
+in front of a captured surface.  The simulator looks the points up in a warp hash
+grid (``data_gen.sim.static_scene.StaticPoints``); placement avoids them.  One
+placement region ("footprint") is set above the floor, centred on the splats'
+footprint (the 2nd-98th percentile box of the centres' x, y), half as wide as that
+box but at most ``MAX_REGION_HALF_M`` per side, from 0.1 to 0.9 m above the floor.
 """
 
 from __future__ import annotations
@@ -32,12 +42,14 @@ from data_gen.assets.materials import ProceduralTexture, get_material
 from data_gen.assets.ply_io import UP_AXES, import_splats
 from data_gen.assets.scenes import PlacementRegion, StaticScene
 
-SCENE_KEYS = ("up", "scale", "ground", "material")
+SCENE_KEYS = ("up", "scale", "ground", "material", "collide", "thickness")
 GROUND_PERCENTILE = 1.0
 FOOTPRINT_PERCENTILES = (2.0, 98.0)
 MAX_REGION_HALF_M = 0.6
 REGION_Z_M = (0.1, 0.9)
 MIN_OPACITY = 0.1
+MIN_THICKNESS_M, MAX_THICKNESS_M = 0.005, 0.05
+FLOOR_BAND_M = 0.02
 _FLOOR_TEXTURE = ProceduralTexture("solid", ((0.6, 0.6, 0.6),))
 
 
@@ -62,6 +74,10 @@ def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
     material = uri.get("material", "ceramic")
     get_material(material)
     scale = uri.get_float("scale", 1.0, 1e-9, 1e9)
+    collide = uri.get("collide", "splats")
+    if collide not in ("splats", "floor"):
+        raise ValueError(f"{reference}: option collide={collide!r} must be 'splats' or 'floor'")
+    thickness = uri.get_float("thickness", 0.0, MIN_THICKNESS_M, MAX_THICKNESS_M) if "thickness" in dict(uri.options) else None
     g, _ = import_splats(uri.path, scale=scale, up_axis=up)
     solid = g.means_m[g.opacities >= MIN_OPACITY].astype(np.float64)
     if len(solid) == 0:
@@ -80,6 +96,7 @@ def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
         (float(centre[0] - half[0]), float(centre[1] - half[1]), REGION_Z_M[0]),
         (float(centre[0] + half[0]), float(centre[1] + half[1]), REGION_Z_M[1]),
     )
+    points, radius = _collision_points(solid, thickness) if collide == "splats" else (None, 0.0)
     splats = SurfaceGaussians(
         means, g.scales_m, g.rotations_wxyz, g.colors_rgb, g.opacities, np.zeros(len(means), np.int32)
     )
@@ -93,4 +110,25 @@ def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
         floor_half_extent_m=float(max(0.5, 0.5 * float((hi - lo).max()))),
         splats=splats,
         source=reference,
+        collision_points_m=points,
+        collision_radius_m=radius,
     )
+
+
+def _collision_points(solid_m: np.ndarray, thickness_m: float | None) -> tuple[np.ndarray | None, float]:
+    """Collision samples (n, 3) m and ball radius (m) of a captured scene's solid splat centres (world, m):
+    centres above the floor band, thinned to one per voxel of edge = radius.  (None, 0) if none remain."""
+    from scipy.spatial import cKDTree
+
+    above = solid_m[solid_m[:, 2] > FLOOR_BAND_M]
+    if len(above) < 2:
+        return None, 0.0
+    if thickness_m is None:
+        spacing = float(np.median(cKDTree(above).query(above, k=2)[0][:, 1]))
+        thickness_m = float(np.clip(0.75 * spacing, MIN_THICKNESS_M, MAX_THICKNESS_M))
+    above = above[above[:, 2] > max(2.0 * thickness_m, FLOOR_BAND_M)]
+    if len(above) == 0:
+        return None, 0.0
+    voxel = np.floor(above / thickness_m).astype(np.int64)
+    _, first = np.unique(voxel, axis=0, return_index=True)
+    return above[np.sort(first)], float(thickness_m)

@@ -108,6 +108,10 @@ class StaticScene:
     """Captured scenes: the file's splats (world frame, Z-up, m), rendered instead of floor and boxes."""
     source: str = ""
     """Captured scenes: the reference the scene was loaded from."""
+    collision_points_m: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
+    """Captured scenes: (n, 3) samples of the collidable captured geometry (world, m); the solid is the
+    union of balls of ``collision_radius_m`` around them (the simulator looks them up in a hash grid)."""
+    collision_radius_m: float = 0.0
 
     def __post_init__(self) -> None:
         get_material(self.floor_material)
@@ -117,6 +121,11 @@ class StaticScene:
             )
         if not self.regions:
             raise ValueError(f"scene {self.name!r}: needs at least one placement region")
+        if self.collision_points_m is not None and not self.collision_radius_m > 0.0:
+            raise ValueError(
+                f"scene {self.name!r}: collision_radius_m must be > 0 m with collision points, "
+                f"got {self.collision_radius_m}"
+            )
 
     def region(self, name: str) -> PlacementRegion:
         for r in self.regions:
@@ -128,12 +137,24 @@ class StaticScene:
 
     def sdf_and_part(self, points_m: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
         """Signed distance (n,) to the static geometry, m (floor half-space z < 0 is solid), and the part:
-        0 = floor, k + 1 = ``boxes[k]``."""
+        0 = floor, k + 1 = ``boxes[k]``, ``len(boxes) + 1`` = the captured collision points."""
         p = np.asarray(points_m, np.float64).reshape(-1, 3)
         d = [p[:, 2]] + [b.shape().sdf(p) for b in self.boxes]  # loop over boxes, vectorised over points
+        if self.collision_points_m is not None:
+            nearest, _ = _collision_tree(self.collision_points_m).query(p)
+            d.append(nearest - self.collision_radius_m)
         stack = np.stack(d)
         k = np.argmin(stack, axis=0).astype(np.int32)
         return stack[k, np.arange(len(p))], k
+
+    def support_height(self, xy_m: ArrayLike, reach_m: float) -> float:
+        """Top (m) of the collidable captured geometry within ``reach_m`` horizontally of ``xy_m``: the
+        highest collision ball there; 0.0 (the floor) where there is none or the scene has no points."""
+        if self.collision_points_m is None:
+            return 0.0
+        pts = self.collision_points_m
+        near = np.linalg.norm(pts[:, :2] - np.asarray(xy_m, np.float64)[:2], axis=1) <= reach_m + self.collision_radius_m
+        return float(pts[near, 2].max() + self.collision_radius_m) if near.any() else 0.0
 
     def sdf(self, points_m: ArrayLike) -> NDArray[np.float64]:
         """Signed distance (n,) to the static geometry, m; negative inside a box or below the floor."""
@@ -144,6 +165,11 @@ class StaticScene:
         extra: dict[str, Any] = {}
         if self.splats is not None:
             extra = {"source": self.source, "num_splats": len(self.splats)}
+        if self.collision_points_m is not None:
+            extra["collision"] = {
+                "num_points": len(self.collision_points_m),
+                "radius_m": self.collision_radius_m,
+            }
         return extra | {
             "name": self.name,
             "kind": self.kind,
@@ -166,6 +192,23 @@ class StaticScene:
             ],
             "regions": [{"name": r.name, "min": list(r.min_m), "max": list(r.max_m)} for r in self.regions],
         }
+
+
+def _collision_tree(points_m: NDArray[np.float64]):
+    """A k-d tree over a scene's collision points, cached per array (scenes are immutable)."""
+    from scipy.spatial import cKDTree
+
+    key = id(points_m)
+    cached = _TREES.get(key)
+    if cached is None or cached[0] is not points_m:
+        if len(_TREES) >= 8:
+            _TREES.clear()
+        cached = (points_m, cKDTree(points_m))
+        _TREES[key] = cached
+    return cached[1]
+
+
+_TREES: dict[int, tuple] = {}
 
 
 # --------------------------------------------------------------------------- #

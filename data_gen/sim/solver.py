@@ -14,6 +14,16 @@ Newton update ``|dq|_M`` falls below ``tol`` times the motion scale of the step
 Near contact an island's step is split into sub-steps (see :meth:`ImplicitEulerSolver.step`), and the
 contact stiffness ``factor * mass / h^2`` follows the sub-step ``h``.
 
+Newton safeguards: one update moves no contact sphere further than a trust radius (twice the step's
+predicted motion plus a median contact radius; affine handles linearise rotations, so a thin stiff object
+can otherwise be offered updates of metres), and when the preset's Armijo halvings fail the search keeps
+halving for any decrease before giving up at the last accepted iterate.
+
+Counters (``ImplicitEulerSolver.counters``, reported in ``SimulationInfo.counters``): island solves,
+``unconverged_solves`` (stopped at ``newton_iterations`` above tolerance), ``line_search_failures``,
+``line_search_extended``, ``trust_limited_steps``, ``strict_projections`` (indefinite Newton matrix:
+every elastic block projected), ``substep_cap_raised`` and energy evaluations.
+
 Sleeping: an awake object whose fastest cubature point moves slower than ``sleep_speed_m_s`` while it is
 supported (in contact) for ``sleep_steps`` consecutive steps is frozen (no Newton work, its contact
 forces held); it wakes when an object moving faster than that speed comes into contact range.
@@ -197,6 +207,7 @@ class ImplicitEulerSolver:
                 "substep_cap_raised",
                 "trust_limited_steps",
                 "line_search_extended",
+                "unconverged_solves",
             ),
             0,
         )
@@ -511,7 +522,7 @@ class ImplicitEulerSolver:
             + h * h * float(self.gravity.norm())
             + min(float(b.radius_m.median()) for b in bodies)
         )
-        iterations = 0
+        iterations, converged = 0, False
         for it in range(self.preset.newton_iterations):
             value, grad, hess = evaluate(q, True)
             self._check_finite(island, split(grad), "objective gradient")
@@ -549,7 +560,10 @@ class ImplicitEulerSolver:
             q = q + alpha * dq
             step_norm = alpha * float(torch.sqrt((dq @ (mass @ dq)).clamp(min=0.0)))
             if step_norm <= self.preset.newton_tolerance * scale:
+                converged = True
                 break
+        if not converged:
+            self.counters["unconverged_solves"] += 1
         qs = split(q)
         self._check_finite(island, qs, "reduced state q")
         for a, b in enumerate(bodies):

@@ -1,8 +1,15 @@
-"""Kinematic static scene: ground plane z = 0 plus oriented boxes, queried as a signed distance.
+"""Kinematic static scene: ground plane z = 0, oriented boxes and a static point cloud, queried as a
+signed distance.
 
 The scene costs no degrees of freedom. ``StaticScene.query`` evaluates the signed distance (m,
-positive outside) and its outward unit normal at many points with one warp kernel (CPU or CUDA);
-``StaticScene.query_torch`` is the batched-torch reference used to cross-check the kernel.
+positive outside) and its outward unit normal at many points with warp kernels (CPU or CUDA);
+``StaticScene.query_torch`` is the batched-torch reference used to cross-check the kernels.
+
+Geometry known only as samples (the splat centres of a captured scene) is a :class:`StaticPoints`:
+the solid is the union of balls of ``radius_m`` around the points, looked up through a warp hash grid
+built once.  Its distance is exact outside the balls up to ``search_m`` from the nearest point;
+further away the query reports ``search_m - radius_m``, a lower bound (conservative for the solver's
+"is contact near" tests, never a false contact).
 """
 
 from __future__ import annotations
@@ -14,6 +21,7 @@ import torch
 import warp as wp
 
 _FAR_M = 1.0e30  # distance reported when the scene is empty
+DEFAULT_POINT_SEARCH_M = 0.1  # hash-grid search radius of a static point cloud, m
 
 
 def quat_wxyz_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
@@ -104,12 +112,76 @@ def _scene_sdf_kernel(
     normal_out[tid] = best_n
 
 
+@dataclass(frozen=True, eq=False)
+class StaticPoints:
+    """Static geometry known by surface samples: solid within ``radius_m`` of any of ``points_m``.
+
+    Attributes:
+        points_m: (n, 3) world positions, m (n >= 1, finite).
+        radius_m: ball radius around each point, m (> 0); at least the point spacing, so the balls close
+            the surface between samples.
+        search_m: hash-grid search radius, m (> radius_m); distances beyond it are reported as
+            ``search_m - radius_m`` (a lower bound).
+    """
+
+    points_m: np.ndarray
+    radius_m: float
+    search_m: float = DEFAULT_POINT_SEARCH_M
+
+    def __post_init__(self) -> None:
+        pts = np.ascontiguousarray(self.points_m, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0 or not np.all(np.isfinite(pts)):
+            raise ValueError(f"StaticPoints points_m must be finite with shape (n >= 1, 3); got {pts.shape}")
+        if not (self.radius_m > 0 and np.isfinite(self.radius_m)):
+            raise ValueError(f"StaticPoints radius_m={self.radius_m!r} must be > 0 (m)")
+        if not self.search_m > self.radius_m:
+            raise ValueError(
+                f"StaticPoints search_m={self.search_m!r} must exceed radius_m={self.radius_m!r} (m)"
+            )
+        object.__setattr__(self, "points_m", pts)
+
+
+@wp.kernel
+def _points_sdf_kernel(
+    grid: wp.uint64,
+    points: wp.array(dtype=wp.vec3d),
+    static_points: wp.array(dtype=wp.vec3d),
+    radius_m: wp.float64,
+    search_m: wp.float64,
+    sdf_out: wp.array(dtype=wp.float64),
+    normal_out: wp.array(dtype=wp.vec3d),
+):
+    """Lower sdf_out/normal_out to the distance of the union of balls around the static points."""
+    tid = wp.tid()
+    p = points[tid]
+    best = search_m - radius_m
+    best_n = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
+    found = int(0)
+    pf = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    query = wp.hash_grid_query(grid, pf, wp.float32(search_m))
+    index = int(0)
+    while wp.hash_grid_query_next(query, index):
+        delta = p - static_points[index]
+        dist = wp.length(delta)
+        d = dist - radius_m
+        if d < best and dist > wp.float64(0.0):
+            best = d
+            best_n = delta / dist
+            found = 1
+    if best < sdf_out[tid]:
+        sdf_out[tid] = best
+        if found != 0:
+            normal_out[tid] = best_n
+
+
 @dataclass(frozen=True)
 class StaticScene:
-    """Ground plane z = 0 (optional) plus oriented boxes; the union is the solid static geometry."""
+    """Ground plane z = 0 (optional), oriented boxes and an optional static point cloud; the union is
+    the solid static geometry."""
 
     ground: bool = True
     boxes: tuple[StaticBox, ...] = field(default_factory=tuple)
+    points: StaticPoints | None = None
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
 
     def _box_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -146,7 +218,36 @@ class StaticScene:
             outputs=[sdf, normals],
             device=device,
         )
+        if self.points is not None:
+            grid, static_points = self._device_points(device)
+            wp.launch(
+                _points_sdf_kernel,
+                dim=n,
+                inputs=[
+                    grid.id,
+                    wp.array(pts, dtype=wp.vec3d, device=device, copy=False),
+                    static_points,
+                    wp.float64(self.points.radius_m),
+                    wp.float64(self.points.search_m),
+                ],
+                outputs=[sdf, normals],
+                device=device,
+            )
         return sdf.numpy(), normals.numpy()
+
+    def _device_points(self, device: str) -> tuple[wp.HashGrid, wp.array]:
+        """The static points' hash grid (cell = search radius) and float64 positions, built once per device."""
+        key = ("points", device)
+        cached = self._cache.get(key)
+        if cached is None:
+            pts = self.points.points_m
+            extent = np.ptp(pts, axis=0) / self.points.search_m
+            dims = [int(np.clip(np.ceil(e) + 1, 1, 128)) for e in extent]
+            grid = wp.HashGrid(*dims, device=device)
+            grid.build(wp.array(pts.astype(np.float32), dtype=wp.vec3, device=device), float(self.points.search_m))
+            cached = (grid, wp.array(pts, dtype=wp.vec3d, device=device))
+            self._cache[key] = cached
+        return cached
 
     def _device_boxes(self, device: str) -> tuple[wp.array, wp.array, wp.array]:
         cached = self._cache.get(device)
@@ -186,6 +287,22 @@ class StaticScene:
             closer = d < best
             best = torch.where(closer, d, best)
             best_n = torch.where(closer[:, None], n_local @ rot.T, best_n)
+        if self.points is not None:
+            cloud = torch.as_tensor(self.points.points_m)
+            for start in range(0, n, 4096):  # chunks of query points, brute force over the cloud
+                chunk = slice(start, start + 4096)
+                dist = torch.cdist(p[chunk], cloud)
+                nearest, index = dist.min(dim=1)
+                d = torch.where(
+                    nearest < self.points.search_m,
+                    nearest - self.points.radius_m,
+                    torch.full_like(nearest, self.points.search_m - self.points.radius_m),
+                )
+                normal = (p[chunk] - cloud[index]) / nearest.clamp(min=1e-300)[:, None]
+                closer = d < best[chunk]
+                in_reach = closer & (nearest < self.points.search_m)
+                best_n[chunk] = torch.where(in_reach[:, None], normal, best_n[chunk])
+                best[chunk] = torch.where(closer, d, best[chunk])
         return best, best_n
 
 

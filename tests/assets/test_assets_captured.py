@@ -1,4 +1,5 @@
-"""Captured splats: get_scene("ply:...") (file splats render, floor z = 0 collides) and get_object("ply:...")."""
+"""Captured splats: get_scene("ply:...") (file splats render; floor z = 0 and the captured geometry collide)
+and get_object("ply:...")."""
 
 import numpy as np
 import pytest
@@ -53,10 +54,33 @@ def test_captured_scene_is_z_up_metric_on_the_floor(tmp_path):
     (region,) = scene.regions
     np.testing.assert_allclose(region.min_m, [1.5, 0.5, 0.1], atol=0.03)
     np.testing.assert_allclose(region.max_m, [2.5, 1.5, 0.9], atol=0.03)
-    # collision geometry is the ground plane only (captured furniture is not collidable)
-    np.testing.assert_allclose(scene.sdf([[2.0, 1.0, 0.45], [0.0, 0.0, -0.2]]), [0.45, -0.2])
+    # collision: the floor plane plus balls around the captured splats above the floor band; the two
+    # chair splats are 10 cm apart -> thickness 0.75 x 0.1 m, clipped to the 5 cm maximum; floor splats
+    # (z = 0 after ground=auto) are left to the plane
+    np.testing.assert_allclose(scene.collision_points_m, [[2.0, 1.0, 0.45], [2.1, 1.0, 0.45]], atol=1e-6)
+    assert scene.collision_radius_m == pytest.approx(0.05)
+    np.testing.assert_allclose(
+        scene.sdf([[2.0, 1.0, 0.45], [2.0, 1.0, 0.75], [1.5, 1.0, 0.3], [0.0, 0.0, -0.2]]),
+        [-0.05, 0.25, 0.3, -0.2],
+        atol=1e-6,
+    )
     ws = scene.to_world_state()
     assert ws["kind"] == "captured" and ws["num_splats"] == len(g) and ws["boxes"] == []
+    assert ws["collision"] == {"num_points": 2, "radius_m": pytest.approx(0.05)}
+
+
+def test_captured_scene_collision_options(tmp_path):
+    path, _ = _y_up_room(tmp_path)
+    floor_only = get_scene(f"ply:{path}?up=y&scale=0.01&collide=floor")
+    assert floor_only.collision_points_m is None and "collision" not in floor_only.to_world_state()
+    np.testing.assert_allclose(floor_only.sdf([[2.0, 1.0, 0.45]]), [0.45])  # the chair is not collidable
+    thin = get_scene(f"ply:{path}?up=y&scale=0.01&thickness=0.01")
+    assert thin.collision_radius_m == 0.01
+    np.testing.assert_allclose(thin.sdf([[2.05, 1.0, 0.45]]), [0.05 - 0.01], atol=1e-6)
+    with pytest.raises(ValueError, match="collide"):
+        get_scene(f"ply:{path}?collide=walls")
+    with pytest.raises(ValueError, match="thickness"):
+        get_scene(f"ply:{path}?thickness=2")
 
 
 def test_captured_scene_keep_ground_and_errors(tmp_path):
@@ -136,3 +160,33 @@ def test_voxel_shape_sdf_and_volume_on_a_cube():
     np.testing.assert_allclose(shape.sdf(pts), [-0.02, 0.02, 0.0, 0.11], atol=1e-9)
     mesh = shape.own_surface_mesh()
     assert mesh.is_watertight and mesh.volume == pytest.approx(0.09**3, rel=0.02)
+
+
+def test_objects_land_on_captured_furniture(tmp_path):
+    """A captured room whose table (top at 0.3 m, sampled every 2 cm) covers the placement footprint:
+    objects are placed above the table and come to rest on it, a thickness above its samples, instead of
+    falling through to the floor as when only the floor collided."""
+    from data_gen.pipeline import RenderSettings, build_objects, scene_layout, simulate
+    from data_gen.scene import ScenarioConfig, sample_scenario
+    from data_gen.sim.presets import load_preset
+
+    u, v = np.meshgrid(np.linspace(-1.5, 1.5, 61), np.linspace(-1.5, 1.5, 61), indexing="ij")
+    floor = np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], 1)
+    a = np.arange(-0.8, 0.8 + 1e-9, 0.02)
+    tu, tv = np.meshgrid(a, a, indexing="ij")
+    top = np.stack([tu.ravel(), tv.ravel(), np.full(tu.size, 0.3)], 1)
+    export_splats(tmp_path / "room.ply", _splats(np.concatenate([floor, top])))
+    reference = f"ply:{tmp_path}/room.ply?ground=keep"
+    scene = get_scene(reference)
+    assert scene.collision_radius_m == pytest.approx(0.015)  # 0.75 x the 2 cm spacing of the table top
+    cfg = ScenarioConfig(
+        scenes=(reference,), objects=("toy_brick", "ball"), num_objects=(2, 2), size_m=(0.08, 0.1),
+        camera_distance_m=(0.9, 1.1), motions={"drop": 1.0},
+    )  # fmt: skip
+    scenario = sample_scenario(cfg, "table", 3, "train", "earth", 26, 25.0, (32, 32))
+    objects = build_objects(scenario, RenderSettings(800, 400))
+    result = simulate(scenario, objects, scene_layout(scenario.scene), load_preset("draft"))
+    for track in result.objects:
+        bottom = track.contact_positions_m[..., 2] - track.contact_radius_m[None]  # (frames, spheres)
+        assert bottom.min() > 0.3 + 0.015 - 0.003, track.name  # never below the table's collision surface
+        assert bottom[-1].min() < 0.3 + 0.015 + 0.003, track.name  # and resting on it after 1 s
