@@ -23,7 +23,7 @@ import numpy as np
 from data_gen.assets.library import get_object, list_objects
 from data_gen.assets.materials import sample_material
 from data_gen.assets.scenes import get_scene, list_scenes
-from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, sample_camera_spec
+from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, path_from_spec, sample_camera_spec
 from newtphys import schema
 from newtphys.geometry import quat_to_matrix
 
@@ -240,19 +240,62 @@ def sample_scenario(
     centres = np.array([c for c, _ in placed])
     target = centres.mean(axis=0)
     target[2] = max(0.5 * target[2], 0.05)
-    camera = sample_camera_spec(
-        cfg.camera_kinds[int(rng_cam.integers(len(cfg.camera_kinds)))],
-        target,
-        radius_m=_uniform(rng_cam, cfg.camera_distance_m),
-        height_m=_uniform(rng_cam, cfg.camera_height_m),
-        rng=rng_cam,
-        fov_x_deg=_uniform(rng_cam, cfg.fov_x_deg),
-    )
+    for _ in range(CAMERA_TRIES):
+        camera = sample_camera_spec(
+            cfg.camera_kinds[int(rng_cam.integers(len(cfg.camera_kinds)))],
+            target,
+            radius_m=_uniform(rng_cam, cfg.camera_distance_m),
+            height_m=_uniform(rng_cam, cfg.camera_height_m),
+            rng=rng_cam,
+            fov_x_deg=_uniform(rng_cam, cfg.fov_x_deg),
+        )
+        if camera_view_is_clear(scene, camera, placed, num_frames, fps):
+            break
+    else:
+        raise ScenarioError(
+            f"scenario '{cfg.name}', sequence {sequence_id}: no camera path in {CAMERA_TRIES} draws sees the objects "
+            f"past the static geometry of scene '{scene_name}' (camera_distance_m={tuple(cfg.camera_distance_m)})"
+        )
     return Scenario(
         sequence_id=sequence_id, seed=seed, split=split, scene=scene_name, objects=tuple(objects),
         gravity_m_s2=gravity_for_split(split, gravity_mode, rng_g), camera=camera, num_frames=num_frames,
         fps=float(fps), image_size=(int(image_size[0]), int(image_size[1])),
     )
+
+
+CAMERA_TRIES = 50
+CAMERA_CLEARANCE_M = 0.05  # the camera keeps this far from static geometry
+_CHECK_FRAMES = 12  # camera positions checked along a path
+_RAY_SAMPLES = 48  # sdf samples along each line of sight
+
+
+def camera_view_is_clear(
+    scene, camera: CameraPathSpec, placed: Sequence[tuple[np.ndarray, float]], num_frames: int, fps: float
+) -> bool:
+    """Whether, along the whole path, the camera stays ``CAMERA_CLEARANCE_M`` outside the static geometry
+    and sees at least one object's spawn centre: the segment to it, up to the object's bounding radius,
+    stays outside walls, boxes and the floor (a camera behind a room's wall saw nothing and its sequence
+    was simulated for nothing, then rejected as out of view)."""
+    w2c = path_from_spec(camera, num_frames, fps)
+    frames = np.unique(np.linspace(0, num_frames - 1, min(num_frames, _CHECK_FRAMES)).round().astype(int))
+    t = np.linspace(0.0, 1.0, _RAY_SAMPLES)[:, None]
+    for f in frames:  # loop over a few frames of the path
+        rot, trans = w2c[f, :3, :3], w2c[f, :3, 3]
+        eye = -rot.T @ trans
+        if float(scene.sdf(eye[None])[0]) < CAMERA_CLEARANCE_M:
+            return False
+        seen = False
+        for centre, radius in placed:  # loop over objects until one is in sight
+            distance = float(np.linalg.norm(centre - eye))
+            if distance <= radius:
+                continue
+            end = centre + (eye - centre) * (radius / distance)  # stop at the object's bounding sphere
+            if float(scene.sdf(eye[None] + t * (end - eye)[None]).min()) > 0.0:
+                seen = True
+                break
+        if not seen:
+            return False
+    return True
 
 
 COUNTERFACTUAL_CHANGES = ("gravity", "shift", "resize")
