@@ -188,6 +188,7 @@ def sample_scenario(
     motions = list(cfg.motions)
     weights = np.array([cfg.motions[m] for m in motions], np.float64)
     placed: list[tuple[np.ndarray, float]] = []  # (centre, bounding radius)
+    aims: list[np.ndarray] = []
     objects: list[ObjectPlacement] = []
     for k in range(n):
         asset_name = pool[int(rng_obj.integers(len(pool)))]
@@ -219,12 +220,18 @@ def sample_scenario(
                 "lower num_objects or size_m"
             )
         placed.append((p, radius))
+        aims.append(p.copy())  # what the camera should keep in view of this object
         origin = p - quat_to_matrix(orientation) @ centre_local  # put the bounding-box centre at p
         vel = np.zeros(3)
         if motion == "throw":
             to_centre = -p[:2] / (np.linalg.norm(p[:2]) + 1e-9)
             speed = _uniform(rng_obj, cfg.throw_speed_m_s)
             vel = np.array([*(0.8 * speed * to_centre), 0.6 * speed])
+            # frame the flight: aim between the spawn point and the ballistic landing point (Earth g)
+            fall = max(p[2] - support_z, 0.0)
+            t_land = (vel[2] + np.sqrt(vel[2] ** 2 + 2.0 * schema.EARTH_GRAVITY_M_S2 * fall)) / schema.EARTH_GRAVITY_M_S2
+            landing = p + np.array([vel[0] * t_land, vel[1] * t_land, -fall])
+            aims[-1] = 0.5 * (p + landing)
         elif motion == "push":
             ang = rng_obj.uniform(0, 2 * np.pi)
             vel = _uniform(rng_obj, cfg.push_speed_m_s) * np.array([np.cos(ang), np.sin(ang), 0.0])
@@ -237,8 +244,7 @@ def sample_scenario(
             angular_velocity_rad_s=tuple(float(v) for v in spin) if motion != "push" else (0.0, 0.0, 0.0),
             motion=motion, color_seed=int(rng_obj.integers(2**31)),
         ))
-    centres = np.array([c for c, _ in placed])
-    target = centres.mean(axis=0)
+    target = np.mean(aims, axis=0)
     target[2] = max(0.5 * target[2], 0.05)
     for _ in range(CAMERA_TRIES):
         camera = sample_camera_spec(
