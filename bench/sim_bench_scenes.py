@@ -76,6 +76,11 @@ def _ball(
     )
 
 
+def _single_placement(scene_name: str, variant: int) -> None:
+    if variant:
+        raise ValueError(f"{scene_name} has one variant; got variant={variant}")
+
+
 def rigid_drop(
     training: SkinningTrainingSettings | None = None, variant: int = 0
 ) -> tuple[StaticScene, list[SimObjectSpec]]:
@@ -100,8 +105,7 @@ def mixed_five(
 ) -> tuple[StaticScene, list[SimObjectSpec]]:
     """Five objects (two soft, three stiff) thrown at each other over the ground, next to a static box.
     (One placement: ``variant`` must be 0.)"""
-    if variant:
-        raise ValueError(f"mixed_five has one variant; got variant={variant}")
+    _single_placement("mixed_five", variant)
     scene = StaticScene(boxes=(StaticBox((0.0, 0.6, 0.15), (0.5, 0.1, 0.15)),))
     return scene, [
         _box(
@@ -141,8 +145,7 @@ def soft_pile_ten(
 ) -> tuple[StaticScene, list[SimObjectSpec]]:
     """Ten identical soft boxes dropped in a staggered column: they pile up on the ground.
     (One placement: ``variant`` must be 0.)"""
-    if variant:
-        raise ValueError(f"soft_pile_ten has one variant; got variant={variant}")
+    _single_placement("soft_pile_ten", variant)
     objs = []
     for k in range(10):
         x = 0.05 * ((k % 3) - 1)

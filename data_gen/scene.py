@@ -284,24 +284,20 @@ def camera_view_is_clear(
     was simulated for nothing, then rejected as out of view)."""
     w2c = path_from_spec(camera, num_frames, fps)
     frames = np.unique(np.linspace(0, num_frames - 1, min(num_frames, _CHECK_FRAMES)).round().astype(int))
-    t = np.linspace(0.0, 1.0, _RAY_SAMPLES)[:, None]
-    for f in frames:  # loop over a few frames of the path
-        rot, trans = w2c[f, :3, :3], w2c[f, :3, 3]
-        eye = -rot.T @ trans
-        if float(scene.sdf(eye[None])[0]) < CAMERA_CLEARANCE_M:
-            return False
-        seen = False
-        for centre, radius in placed:  # loop over objects until one is in sight
-            distance = float(np.linalg.norm(centre - eye))
-            if distance <= radius:
-                continue
-            end = centre + (eye - centre) * (radius / distance)  # stop at the object's bounding sphere
-            if float(scene.sdf(eye[None] + t * (end - eye)[None]).min()) > 0.0:
-                seen = True
-                break
-        if not seen:
-            return False
-    return True
+    eyes = np.einsum("fji,fj->fi", w2c[frames, :3, :3], -w2c[frames, :3, 3])  # camera centres -R^T t, (F, 3)
+    if float(scene.sdf(eyes).min()) < CAMERA_CLEARANCE_M:
+        return False
+    centres = np.array([c for c, _ in placed])  # (O, 3)
+    radii = np.array([r for _, r in placed])  # (O,)
+    offset = eyes[:, None] - centres[None]  # (F, O, 3)
+    distance = np.linalg.norm(offset, axis=2)  # (F, O)
+    outside = distance > radii[None]
+    # segments from the eye to each object's bounding sphere, sampled (F, O, S, 3), one sdf query for all
+    ends = centres[None] + offset * (radii[None] / np.maximum(distance, 1e-12))[..., None]
+    t = np.linspace(0.0, 1.0, _RAY_SAMPLES)[None, None, :, None]
+    rays = eyes[:, None, None] + t * (ends - eyes[:, None])[:, :, None]
+    free = scene.sdf(rays.reshape(-1, 3)).reshape(rays.shape[:3]).min(axis=2) > 0.0  # (F, O)
+    return bool((free & outside).any(axis=1).all())
 
 
 COUNTERFACTUAL_CHANGES = ("gravity", "shift", "resize")

@@ -16,6 +16,7 @@ z = 0 collides (captured furniture is not collidable yet).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -141,11 +142,18 @@ class StaticScene:
         p = np.asarray(points_m, np.float64).reshape(-1, 3)
         d = [p[:, 2]] + [b.shape().sdf(p) for b in self.boxes]  # loop over boxes, vectorised over points
         if self.collision_points_m is not None:
-            nearest, _ = _collision_tree(self.collision_points_m).query(p)
+            nearest, _ = self._collision_tree.query(p)
             d.append(nearest - self.collision_radius_m)
         stack = np.stack(d)
         k = np.argmin(stack, axis=0).astype(np.int32)
         return stack[k, np.arange(len(p))], k
+
+    @functools.cached_property
+    def _collision_tree(self):
+        """k-d tree over the collision points (built on first use; the scene is immutable)."""
+        from scipy.spatial import cKDTree
+
+        return cKDTree(self.collision_points_m)
 
     def support_height(self, xy_m: ArrayLike, reach_m: float) -> float:
         """Top (m) of the collidable captured geometry within ``reach_m`` horizontally of ``xy_m``: the
@@ -192,23 +200,6 @@ class StaticScene:
             ],
             "regions": [{"name": r.name, "min": list(r.min_m), "max": list(r.max_m)} for r in self.regions],
         }
-
-
-def _collision_tree(points_m: NDArray[np.float64]):
-    """A k-d tree over a scene's collision points, cached per array (scenes are immutable)."""
-    from scipy.spatial import cKDTree
-
-    key = id(points_m)
-    cached = _TREES.get(key)
-    if cached is None or cached[0] is not points_m:
-        if len(_TREES) >= 8:
-            _TREES.clear()
-        cached = (points_m, cKDTree(points_m))
-        _TREES[key] = cached
-    return cached[1]
-
-
-_TREES: dict[int, tuple] = {}
 
 
 # --------------------------------------------------------------------------- #
