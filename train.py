@@ -1,15 +1,10 @@
-"""Train a probe on a frozen backbone: ``python train.py backbone=dinov2 task=gravity``."""
+"""Train a probe on a frozen backbone: ``python train.py backbone=dinov2 task=gravity``.
 
-import hydra
-from omegaconf import DictConfig
+The same command as the installed ``newtphys-train`` (``probes.train_cli``): it returns the monitored
+validation metric to Hydra (sweepers optimise it).
+"""
 
-
-@hydra.main(version_base="1.3", config_path="conf", config_name="train")
-def main(cfg: DictConfig) -> None:
-    from probes.run import run
-
-    run(cfg)
-
+from probes.train_cli import main
 
 if __name__ == "__main__":
     main()

@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from data_gen.pipeline import RenderSettings, SequenceRejected, generate_sequence
-from data_gen.scene import ScenarioConfig, sample_scenario
+from data_gen.configs import render_settings, scenario_config
+from data_gen.pipeline import SequenceRejected, generate_sequence
+from data_gen.scene import sample_scenario
 from data_gen.sim.presets import load_preset
 from newtphys.shards import ShardWriter
 
@@ -33,9 +34,10 @@ def main() -> None:
     ap.add_argument("--presets", default="draft,standard")
     args = ap.parse_args()
     n_obj, frames, size, reps = (3, 12, 128, 1) if args.quick else (5, 50, 256, 2)
-    cfg = ScenarioConfig(scenes=("empty_floor",), num_objects=(n_obj, n_obj), size_m=(0.12, 0.2),
-                         camera_distance_m=(0.9, 1.1))
-    settings = RenderSettings()
+    # the shipped drop scenario and render settings (what generate.py runs), on one floor with n objects
+    cfg = scenario_config("drop", scenes=("empty_floor",), num_objects=(n_obj, n_obj), size_m=(0.12, 0.2),
+                          camera_distance_m=(0.9, 1.1))
+    settings = render_settings()
     rows = []
     rejected: list[dict] = []
     for preset_name in args.presets.split(","):

@@ -42,7 +42,7 @@ REJECTIONS_FILE = "rejections.jsonl"
 
 @dataclass(frozen=True)
 class GenerationConfig:
-    """Typed view of conf/generate.yaml (everything but the Hydra plumbing)."""
+    """Typed view of newtphys/conf/generate.yaml (everything but the Hydra plumbing)."""
 
     out_dir: Path
     split: str
@@ -93,10 +93,11 @@ class GenerationConfig:
             if not 0 <= shards[0] < shards[1] <= num_shards:
                 raise ValueError(f"generate config: shards {list(shards)} must satisfy 0 <= first < stop <= {num_shards}")
         quality = dict(need("quality"))
-        render = dict(cfg.get("render") or {})
-        unknown = set(render) - {f for f in RenderSettings.__dataclass_fields__}
-        if unknown:
-            raise ValueError(f"generate config: unknown render keys {sorted(unknown)}")
+        render = dict(need("render"))
+        known = set(RenderSettings.__dataclass_fields__)
+        if set(render) != known:
+            raise ValueError(f"generate config: render keys: unknown {sorted(set(render) - known)}, "
+                             f"missing {sorted(known - set(render))} (newtphys/conf/generate.yaml lists them all)")
         return GenerationConfig(
             out_dir=Path(str(need("out_dir"))), split=split, gravity=gravity,
             num_sequences=ints["num_sequences"], sequences_per_shard=ints["sequences_per_shard"], shards=shards,

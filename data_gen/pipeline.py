@@ -88,21 +88,27 @@ class SequenceRejected(RuntimeError):
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """How densely objects and the scene are covered by Gaussians and sampled by particles."""
+    """How densely objects and the scene are covered by Gaussians and sampled by particles.
 
-    object_gaussians: int = 4000
+    The values live in ``newtphys/conf/generate.yaml`` (``render:``), their one source: load them with
+    ``data_gen.configs.render_settings(**changes)``.
+    """
+
+    object_gaussians: int
     """Surface Gaussians per object."""
-    interior_points: int = 1500
+    interior_points: int
     """Simulation particles per object (volume and mass sampling)."""
-    contact_surface_samples: int = 4000
+    contact_surface_samples: int
     """Surface samples per object among which the preset's contact spheres are picked."""
-    scene_spacing_m: float = 0.025
+    scene_spacing_m: float
     """Grid spacing of the static scene's Gaussians."""
-    min_visible_objects: int = 1
+    min_visible_objects: int
     """Objects that must be visible (>= min_visible_pixels) in the last frame."""
-    min_visible_pixels: int = 16
-    device: str = "cpu"
-    num_threads: int = 2
+    min_visible_pixels: int
+    device: str
+    """Warp device: ``cpu`` or ``cuda``."""
+    num_threads: int
+    """Torch threads of one simulation."""
 
 
 @dataclass
@@ -182,7 +188,7 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
              skinning_cache_dir: str | None = None) -> SimulationResult:
     specs = [
         SimObjectSpec(
-            name=f"{o.object_id}:{p.asset}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
+            name=f"{o.object_id}:{o.asset.name}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
             material=o.material, position_m=p.position_m, orientation_wxyz=p.orientation_wxyz,
             velocity_m_s=p.velocity_m_s, angular_velocity_rad_s=p.angular_velocity_rad_s,
             surface=o.contact_surface,
@@ -361,16 +367,17 @@ def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: Sc
         schema_version=schema.SCHEMA_VERSION, sequence_id=scenario.sequence_id, seed=scenario.seed,
         split=scenario.split, fps=scenario.fps, num_frames=scenario.num_frames, image_size=scenario.image_size,
         gravity=tuple(float(v) for v in scenario.gravity_m_s2),
-        scene=SceneInfo(name=layout.name, kind=layout.kind, extra={"camera": scenario.camera.kind}),
+        scene=SceneInfo(name=layout.name, kind=layout.kind,
+                        extra={"camera": scenario.camera.kind} | ({"source": layout.source} if layout.source else {})),
         materials=material_id_table(), semantic_classes=semantic_class_table(),
         objects=[
             ObjectInfo(
-                id=o.object_id, name=p.asset, category=o.asset.category, material=p.material,
+                id=o.object_id, name=o.asset.name, category=o.asset.category, material=p.material,
                 young_modulus=p.young_modulus_pa, poisson_ratio=p.poisson_ratio, density=p.density_kg_m3,
                 mass=tracks[o.object_id].mass_kg, volume=o.volume_m3, size=tuple(o.asset.size_m.tolist()),
                 num_handles=tracks[o.object_id].num_handles,
                 num_cubature_points=int(len(tracks[o.object_id].points_rest_m)),
-                extra={"motion": p.motion},
+                extra={"motion": p.motion} | ({"source": o.asset.source} if o.asset.source else {}),
             )
             for o, p in zip(objects, scenario.objects)
         ],

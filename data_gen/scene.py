@@ -20,6 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from data_gen.assets.asset_uri import is_asset_reference
+from data_gen.assets.captured import check_scene_reference
+from data_gen.assets.imported import check_object_reference
 from data_gen.assets.library import get_object, list_objects
 from data_gen.assets.materials import sample_material
 from data_gen.assets.scenes import get_scene, list_scenes
@@ -40,7 +43,7 @@ class ObjectPlacement:
     """1-based."""
     asset: str
     size_m: float
-    """Largest bounding-box extent after scaling, m."""
+    """Largest bounding-box extent after scaling, m (a user asset at its given scale: its own extent)."""
     material: str
     young_modulus_pa: float
     poisson_ratio: float
@@ -76,28 +79,34 @@ class Scenario:
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    """Ranges a scenario is drawn from (conf/scenario/*.yaml). Ranges are closed [min, max]."""
+    """Ranges a scenario is drawn from. Ranges are closed [min, max].
 
-    name: str = "drop"
-    scenes: tuple[str, ...] = ("empty_floor",)
-    num_objects: tuple[int, int] = (1, 3)
-    objects: tuple[str, ...] | None = None
-    """Library names to draw from (None: the whole library)."""
-    size_m: tuple[float, float] = (0.1, 0.3)
-    motions: Mapping[str, float] = field(default_factory=lambda: {"drop": 1.0})
+    The values live in ``newtphys/conf/scenario/<name>.yaml`` (over ``base.yaml``), the one source of every
+    default: load them with ``data_gen.configs.scenario_config(name, **changes)``. Objects and scenes are
+    library names or user references (``file:``/``ply:`` objects, ``ply:`` captured scenes).
+    """
+
+    name: str
+    scenes: tuple[str, ...]
+    num_objects: tuple[int, int]
+    objects: tuple[str, ...] | None
+    """Library names or file:/ply: references to draw from (None: the whole library)."""
+    size_m: tuple[float, float]
+    """Largest extent of a drawn library object, m (imported objects keep their own scale unless resize=true)."""
+    motions: Mapping[str, float]
     """Motion kind -> probability weight."""
-    drop_height_m: tuple[float, float] = (0.05, 0.5)
+    drop_height_m: tuple[float, float]
     """Clearance of the object's lowest point above its support at t = 0."""
-    throw_speed_m_s: tuple[float, float] = (1.0, 3.0)
-    push_speed_m_s: tuple[float, float] = (0.5, 2.0)
-    spin_rad_s: tuple[float, float] = (0.0, 3.0)
-    random_orientation: bool = True
-    camera_kinds: tuple[str, ...] = CAMERA_KINDS
-    camera_distance_m: tuple[float, float] = (1.2, 2.0)
+    throw_speed_m_s: tuple[float, float]
+    push_speed_m_s: tuple[float, float]
+    spin_rad_s: tuple[float, float]
+    random_orientation: bool
+    camera_kinds: tuple[str, ...]
+    camera_distance_m: tuple[float, float]
     """Horizontal camera-target distance at t = 0."""
-    camera_height_m: tuple[float, float] = (0.5, 1.2)
-    fov_x_deg: tuple[float, float] = (45.0, 60.0)
-    max_placement_tries: int = 200
+    camera_height_m: tuple[float, float]
+    fov_x_deg: tuple[float, float]
+    max_placement_tries: int
 
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any]) -> ScenarioConfig:
@@ -105,6 +114,12 @@ class ScenarioConfig:
         unknown = sorted(set(cfg) - known)
         if unknown:
             raise ScenarioError(f"scenario config: unknown keys {unknown}; known keys: {sorted(known)}")
+        missing = sorted(known - set(cfg))
+        if missing:
+            raise ScenarioError(
+                f"scenario config {cfg.get('name')!r}: missing keys {missing} (scenario files list them in "
+                "newtphys/conf/scenario/base.yaml; load configs with data_gen.configs.scenario_config)"
+            )
         kwargs = {k: (tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in cfg.items()}
         if "motions" in kwargs:
             kwargs["motions"] = dict(cfg["motions"])
@@ -112,13 +127,41 @@ class ScenarioConfig:
         out.check()
         return out
 
+    def replace(self, **changes: Any) -> ScenarioConfig:
+        """A copy with some fields changed (sequences become tuples), checked again."""
+        unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)})
+        if unknown:
+            raise ScenarioError(f"scenario '{self.name}': unknown keys {unknown}")
+        changes = {k: (tuple(v) if isinstance(v, list) else v) for k, v in changes.items()}
+        out = dataclasses.replace(self, **changes)
+        out.check()
+        return out
+
     def check(self) -> None:
         for s in self.scenes:
-            if s not in list_scenes():
-                raise ScenarioError(f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scenes()}")
+            if is_asset_reference(s):
+                try:
+                    check_scene_reference(s)
+                except (ValueError, KeyError, FileNotFoundError) as e:
+                    raise ScenarioError(f"scenario '{self.name}': scene {s!r}: {_message(e)}") from None
+            elif s not in list_scenes():
+                raise ScenarioError(
+                    f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scenes()} or "
+                    "'ply:<captured scene .ply>?<options>'"
+                )
         for o in self.objects or ():
-            if o not in list_objects():
-                raise ScenarioError(f"scenario '{self.name}': unknown object {o!r}; valid objects: {list_objects()}")
+            if is_asset_reference(o):
+                try:
+                    check_object_reference(o)
+                except (ValueError, KeyError, FileNotFoundError) as e:
+                    raise ScenarioError(f"scenario '{self.name}': object {o!r}: {_message(e)}") from None
+            elif o not in list_objects():
+                raise ScenarioError(
+                    f"scenario '{self.name}': unknown object {o!r}; valid objects: {list_objects()} or "
+                    "'file:<mesh>?<options>' / 'ply:<3DGS object .ply>?<options>'"
+                )
+        if self.max_placement_tries < 1:
+            raise ScenarioError(f"scenario '{self.name}': max_placement_tries must be >= 1, got {self.max_placement_tries}")
         lo, hi = self.num_objects
         if not 1 <= lo <= hi <= 10:
             raise ScenarioError(f"scenario '{self.name}': num_objects must satisfy 1 <= min <= max <= 10, got {self.num_objects}")
@@ -133,6 +176,11 @@ class ScenarioConfig:
             lo, hi = getattr(self, key)
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
                 raise ScenarioError(f"scenario '{self.name}': {key} must be a range 0 <= min <= max, got {(lo, hi)}")
+
+
+def _message(error: Exception) -> str:
+    """An exception's text (a KeyError's without the quotes its str adds)."""
+    return str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
 
 
 def gravity_for_split(split: str, mode: str, rng: np.random.Generator) -> tuple[float, float, float]:
@@ -192,8 +240,12 @@ def sample_scenario(
     objects: list[ObjectPlacement] = []
     for k in range(n):
         asset_name = pool[int(rng_obj.integers(len(pool)))]
-        size = _uniform(rng_obj, cfg.size_m)
-        asset = get_object(asset_name, size_m=size)
+        size = _uniform(rng_obj, cfg.size_m)  # drawn for every object, so the stream does not depend on the pool
+        asset = get_object(asset_name)
+        if asset.keep_scale:  # a user asset at its given scale keeps its size
+            size = asset.nominal_size_m
+        else:
+            asset = asset.scaled_to(size)
         material = asset.allowed_materials[int(rng_obj.integers(len(asset.allowed_materials)))]
         E, nu, rho = sample_material(material, rng_obj)
         motion = motions[int(rng_obj.choice(len(motions), p=weights / weights.sum()))]

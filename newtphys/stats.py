@@ -14,10 +14,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.figure import Figure
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
@@ -120,7 +117,8 @@ def _markdown(summary: dict[str, object]) -> str:
 
 
 def plot(stats: DatasetStats, out_png: Path) -> Path:
-    fig, axes = plt.subplots(3, 3, figsize=(13, 11))
+    fig = Figure(figsize=(13, 11))  # no pyplot: importing this module sets no backend
+    axes = fig.subplots(3, 3)
     ax = axes.ravel()
 
     def hist(a, data, title, xlabel, log=False):
@@ -155,7 +153,6 @@ def plot(stats: DatasetStats, out_png: Path) -> Path:
     fig.tight_layout()
     out_png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=110)
-    plt.close(fig)
     return out_png
 
 

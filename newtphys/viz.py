@@ -21,11 +21,10 @@ import os
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 import numpy as np  # noqa: E402
-from matplotlib import cm, colors as mcolors  # noqa: E402
+from matplotlib import cm, colors as mcolors
 from PIL import Image, ImageDraw  # noqa: E402
 
 from newtphys import schema  # noqa: E402
@@ -186,8 +185,8 @@ def contact_sheet(
         raise ValueError(f"frame indices {bad} outside [0, {t}) of sequence '{world_state.sequence_id}'")
     lim = sequence_limits(maps)
     rows, cols = len(frame_indices), len(map_names)
-    fig, axes = plt.subplots(rows + 1, cols, figsize=(1.9 * cols, 1.9 * rows + 1.6), squeeze=False,
-                             gridspec_kw={"height_ratios": [1] * rows + [0.8]})
+    fig = Figure(figsize=(1.9 * cols, 1.9 * rows + 1.6))  # no pyplot: importing this module sets no backend
+    axes = fig.subplots(rows + 1, cols, squeeze=False, gridspec_kw={"height_ratios": [1] * rows + [0.8]})
     for r, fi in enumerate(frame_indices):
         rgb = maps[schema.RGB][fi]
         for c, name in enumerate(map_names):
@@ -206,7 +205,7 @@ def contact_sheet(
         entries = _id_legend(world_state, name)
         for k, (idx, label) in enumerate(entries[:6]):
             col = colorize_ids(np.array(idx)) / 255.0
-            ax.add_patch(plt.Rectangle((0.02, 0.62 - 0.12 * k), 0.08, 0.09, color=col, transform=ax.transAxes))
+            ax.add_patch(Rectangle((0.02, 0.62 - 0.12 * k), 0.08, 0.09, color=col, transform=ax.transAxes))
             ax.text(0.14, 0.66 - 0.12 * k, f"{idx}: {label}", fontsize=5, va="center", transform=ax.transAxes)
         scale = {schema.DEPTH: ("turbo", lim.get("depth_min", 0), lim.get("depth_max", 1)),
                  schema.GRAVITY: ("RdBu_r", -lim.get(schema.GRAVITY, 1), lim.get(schema.GRAVITY, 1)),
@@ -226,7 +225,6 @@ def contact_sheet(
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_path, dpi=130)
-    plt.close(fig)
     return out_path
 
 

@@ -183,9 +183,7 @@ def column_grades(rows: list[Row]) -> dict[str, list[float | None]]:
 
 def write_png(rows: list[Row], path: Path) -> None:
     import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: writing a table switches no backend
 
     cmap = matplotlib.colormaps["RdYlGn"]
     grades = column_grades(rows)
@@ -201,7 +199,8 @@ def write_png(rows: list[Row], path: Path) -> None:
         ]
         for i in range(len(rows))
     ]
-    fig, ax = plt.subplots(figsize=(2 + 1.6 * len(header), 0.8 + 0.4 * max(1, len(rows))))
+    fig = Figure(figsize=(2 + 1.6 * len(header), 0.8 + 0.4 * max(1, len(rows))))
+    ax = fig.subplots()
     ax.axis("off")
     if rows:
         table = ax.table(cellText=text, cellColours=colours, colLabels=header, loc="center", cellLoc="center")
@@ -210,7 +209,6 @@ def write_png(rows: list[Row], path: Path) -> None:
         table.scale(1.0, 1.4)
     ax.set_title("NewtPhys probes (test splits; green = best per column)", fontsize=10)
     fig.savefig(path, dpi=150, bbox_inches="tight")
-    plt.close(fig)
 
 
 def make_report(runs_dir: str | Path, out_dir: str | Path | None = None) -> dict[str, Path]:

@@ -185,6 +185,15 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     return metrics
 
 
+def monitored_value(metrics: dict[str, Any]) -> float:
+    """The monitored validation metric of a ``run`` result (what ``train.py`` returns to Hydra sweepers).
+
+    ``metrics["monitor"]`` is ``"val/<name>"``; a missing or non-finite value is NaN, never a silent 0."""
+    split, _, name = str(metrics["monitor"]).partition("/")
+    value = metrics.get(split, {}).get(name)
+    return float("nan") if value is None else float(value)
+
+
 def _finish_wandb(loggers: list[Any]) -> None:
     """Close the W&B run so the next job of a multirun in this process starts its own."""
     if not any(type(lg).__name__ == "WandbLogger" for lg in loggers):

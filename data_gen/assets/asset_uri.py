@@ -1,13 +1,17 @@
 """Parse user asset references: ``<scheme>:<path>?<key>=<value>&...``.
 
 Examples: ``file:/data/mug.obj?material=ceramic&up=y&scale=0.01``,
-``ply:/captures/room.ply?up=y&scale=1.0``. The path runs to the last ``?``; values
+``ply:/captures/room.ply?up=y&scale=1.0``. Every reference takes ``name=<text>``: the
+name shards and questions use (default: the file's stem), so no user path ever
+enters a world state; the file itself is recorded as provenance (file name and
+SHA-256), see :func:`file_provenance`. The path runs to the last ``?``; values
 are plain text (no percent-decoding). Each loader names the keys it accepts and
 their meaning; an unknown key, a repeated key or a malformed pair is an error.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +28,22 @@ class AssetUri:
     def get(self, key: str, default: str) -> str:
         return dict(self.options).get(key, default)
 
+    def display_name(self) -> str:
+        """The ``name`` option, else the file's stem (``/data/duck.obj`` -> ``duck``): never a path."""
+        name = self.get("name", self.path.stem)
+        if not name or "/" in name or "\\" in name:
+            raise ValueError(f"{self.scheme}:{self.path}: option name={name!r} must be non-empty text without '/'")
+        return name
+
+    def get_bool(self, key: str, default: bool) -> bool:
+        """Option ``key`` as ``true``/``false``; anything else is an error naming the key and the value."""
+        text = dict(self.options).get(key)
+        if text is None:
+            return default
+        if text.lower() not in ("true", "false"):
+            raise ValueError(f"{self.scheme}:{self.path}: option {key}={text!r} must be true or false")
+        return text.lower() == "true"
+
     def get_float(self, key: str, default: float, low: float, high: float) -> float:
         """Option ``key`` as a finite float in [low, high]; errors name the key, the value and the range."""
         text = dict(self.options).get(key)
@@ -36,6 +56,23 @@ class AssetUri:
         if not (math.isfinite(value) and low <= value <= high):
             raise ValueError(f"{self.scheme}:{self.path}: option {key}={text} must be in [{low:g}, {high:g}]")
         return value
+
+
+SCHEMES: tuple[str, ...] = ("file", "ply")
+
+
+def is_asset_reference(text: str) -> bool:
+    """Whether ``text`` is a user reference (``file:...`` or ``ply:...``) rather than a library name."""
+    return str(text).partition(":")[0] in SCHEMES and ":" in str(text)
+
+
+def file_provenance(path: Path) -> dict[str, str]:
+    """Where a user asset came from, without its directory: ``{"file": name, "sha256": hex digest}``."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return {"file": path.name, "sha256": digest.hexdigest()}
 
 
 def parse_asset_uri(text: str, allowed_keys: tuple[str, ...]) -> AssetUri:

@@ -4,6 +4,8 @@ Reference syntax (``scenes.get_scene`` forwards it)::
 
     ply:<path>?up=<axis>&scale=<factor>&ground=<auto|keep>&material=<name>&collide=<splats|floor>&thickness=<m>
 
+* ``name`` — the scene's name in shards (default: the file's stem; the file name and
+  its SHA-256 are recorded as ``source``);
 * ``up`` — the file's up axis (z, y, -y, x, -x, -z; default z), rotated to +z;
   ``scale`` — file units to metres (default 1);
 * ``ground`` — ``auto`` (default) translates the splats vertically so that the
@@ -36,13 +38,13 @@ import functools
 
 import numpy as np
 
-from data_gen.assets.asset_uri import parse_asset_uri
+from data_gen.assets.asset_uri import file_provenance, parse_asset_uri
 from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
 from data_gen.assets.materials import ProceduralTexture, get_material
 from data_gen.assets.ply_io import UP_AXES, import_splats
 from data_gen.assets.scenes import PlacementRegion, StaticScene
 
-SCENE_KEYS = ("up", "scale", "ground", "material", "collide", "thickness")
+SCENE_KEYS = ("name", "up", "scale", "ground", "material", "collide", "thickness")
 GROUND_PERCENTILE = 1.0
 FOOTPRINT_PERCENTILES = (2.0, 98.0)
 MAX_REGION_HALF_M = 0.6
@@ -51,6 +53,36 @@ MIN_OPACITY = 0.1
 MIN_THICKNESS_M, MAX_THICKNESS_M = 0.005, 0.05
 FLOOR_BAND_M = 0.02
 _FLOOR_TEXTURE = ProceduralTexture("solid", ((0.6, 0.6, 0.6),))
+
+
+def check_scene_reference(reference: str) -> None:
+    """Cheap checks of a ``ply:`` scene reference without loading it: option keys and values, file exists."""
+    if reference.partition(":")[0] != "ply":
+        raise ValueError(f"scene reference {reference!r}: a captured scene is 'ply:<path>?<options>'")
+    uri = parse_asset_uri(reference, SCENE_KEYS)
+    uri.display_name()
+    _options(uri)
+    if not uri.path.is_file():
+        raise FileNotFoundError(f"ply: scene file not found: {uri.path}")
+
+
+def _options(uri) -> tuple[str, str, str, float, str, float | None]:
+    """(up, ground, material, scale, collide, thickness) of a scene reference, checked."""
+    reference = f"{uri.scheme}:{uri.path}"
+    up = uri.get("up", "z")
+    if up not in UP_AXES:
+        raise ValueError(f"{reference}: option up={up!r} must be one of {', '.join(UP_AXES)}")
+    ground = uri.get("ground", "auto")
+    if ground not in ("auto", "keep"):
+        raise ValueError(f"{reference}: option ground={ground!r} must be 'auto' or 'keep'")
+    material = uri.get("material", "ceramic")
+    get_material(material)
+    scale = uri.get_float("scale", 1.0, 1e-9, 1e9)
+    collide = uri.get("collide", "splats")
+    if collide not in ("splats", "floor"):
+        raise ValueError(f"{reference}: option collide={collide!r} must be 'splats' or 'floor'")
+    thickness = uri.get_float("thickness", 0.0, MIN_THICKNESS_M, MAX_THICKNESS_M) if "thickness" in dict(uri.options) else None
+    return up, ground, material, scale, collide, thickness
 
 
 def captured_scene(reference: str) -> StaticScene:
@@ -65,19 +97,7 @@ def captured_scene(reference: str) -> StaticScene:
 @functools.lru_cache(maxsize=8)
 def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
     uri = parse_asset_uri(reference, SCENE_KEYS)
-    up = uri.get("up", "z")
-    if up not in UP_AXES:
-        raise ValueError(f"{reference}: option up={up!r} must be one of {', '.join(UP_AXES)}")
-    ground = uri.get("ground", "auto")
-    if ground not in ("auto", "keep"):
-        raise ValueError(f"{reference}: option ground={ground!r} must be 'auto' or 'keep'")
-    material = uri.get("material", "ceramic")
-    get_material(material)
-    scale = uri.get_float("scale", 1.0, 1e-9, 1e9)
-    collide = uri.get("collide", "splats")
-    if collide not in ("splats", "floor"):
-        raise ValueError(f"{reference}: option collide={collide!r} must be 'splats' or 'floor'")
-    thickness = uri.get_float("thickness", 0.0, MIN_THICKNESS_M, MAX_THICKNESS_M) if "thickness" in dict(uri.options) else None
+    up, ground, material, scale, collide, thickness = _options(uri)
     g, _ = import_splats(uri.path, scale=scale, up_axis=up)
     solid = g.means_m[g.opacities >= MIN_OPACITY].astype(np.float64)
     if len(solid) == 0:
@@ -101,7 +121,7 @@ def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
         means, g.scales_m, g.rotations_wxyz, g.colors_rgb, g.opacities, np.zeros(len(means), np.int32)
     )
     return StaticScene(
-        name=reference,
+        name=uri.display_name(),
         kind="captured",
         floor_texture=_FLOOR_TEXTURE,
         floor_material=material,
@@ -109,7 +129,7 @@ def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
         regions=(region,),
         floor_half_extent_m=float(max(0.5, 0.5 * float((hi - lo).max()))),
         splats=splats,
-        source=reference,
+        source=file_provenance(uri.path),
         collision_points_m=points,
         collision_radius_m=radius,
     )

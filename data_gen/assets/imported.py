@@ -18,14 +18,17 @@ Reference syntax (``library.get_object`` forwards these)::
   holes filled; the surface runs through the centres of the outermost voxels and
   the volume follows the same convention (``voxel_shape.VoxelShape``).
 
-Options: ``material`` — the object's material class: when given it is the only
+Options: ``name`` — the object's name in shards and questions (default: the file's
+stem; the file name and its SHA-256 are kept apart as ``source``); ``resize`` —
+``false`` (default): the object keeps the size ``scale`` gives it; ``true``: scenario
+sampling rescales it to a drawn ``size_m`` like a library object; ``material`` — the object's material class: when given it is the only
 allowed material (scenario sampling then always uses it); when omitted the
 default is ``plastic`` and every class is allowed; ``up`` — the file's up axis, one of z, y, -y, x, -x, -z
 (default z), rotated to +z; ``scale`` — file units to metres (default 1; e.g.
 0.01 for centimetres); ``voxel`` — splat objects only, m. The asset is centred on
 its bounding box, category ``imported``. The scaled object's largest extent must
-lie in [``MIN_SIZE_M``, ``MAX_SIZE_M``] m; ``get_object(..., size_m=...)`` can then
-rescale it like any library object.
+lie in [``MIN_SIZE_M``, ``MAX_SIZE_M``] m; ``get_object(..., size_m=...)`` can still
+rescale it (counterfactuals do).
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from data_gen.assets.asset_uri import AssetUri, parse_asset_uri
+from data_gen.assets.asset_uri import AssetUri, file_provenance, parse_asset_uri
 from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
 from data_gen.assets.library import MAX_SIZE_M, MIN_SIZE_M, ObjectAsset
 from data_gen.assets.materials import ProceduralTexture, get_material, list_materials
@@ -47,8 +50,8 @@ from data_gen.assets.ply_io import UP_AXES, import_mesh, import_splats
 from data_gen.assets.shapes import Shape
 from data_gen.assets.voxel_shape import VoxelShape
 
-MESH_KEYS = ("material", "up", "scale")
-SPLAT_KEYS = ("material", "up", "scale", "voxel")
+MESH_KEYS = ("name", "material", "up", "scale", "resize")
+SPLAT_KEYS = ("name", "material", "up", "scale", "resize", "voxel")
 DEFAULT_MATERIAL = "plastic"
 DEFAULT_VOXELS_ACROSS = 32
 SOLID_MIN_OPACITY = 0.1
@@ -82,13 +85,27 @@ def _file_key(uri: AssetUri) -> tuple[int, int]:
     return st.st_mtime_ns, st.st_size
 
 
+def _uri(reference: str) -> AssetUri:
+    scheme = reference.partition(":")[0]
+    if scheme not in ("file", "ply"):
+        raise ValueError(f"asset reference {reference!r}: scheme must be 'file' (mesh) or 'ply' (splats)")
+    return parse_asset_uri(reference, MESH_KEYS if scheme == "file" else SPLAT_KEYS)
+
+
+def check_object_reference(reference: str) -> None:
+    """Cheap checks of an object reference without loading it: scheme, option keys and values, file exists."""
+    uri = _uri(reference)
+    _common_options(uri)
+    uri.display_name()
+    uri.get_bool("resize", False)
+    if uri.scheme == "ply":
+        uri.get_float("voxel", 0.0, 1e-5, 1.0)
+    _file_key(uri)
+
+
 def imported_object(reference: str) -> ObjectAsset:
     """The ``ObjectAsset`` of a ``file:`` or ``ply:`` reference (cached per reference and file version)."""
-    scheme = reference.partition(":")[0]
-    uri = parse_asset_uri(reference, MESH_KEYS if scheme == "file" else SPLAT_KEYS)
-    if uri.scheme not in ("file", "ply"):
-        raise ValueError(f"asset reference {reference!r}: scheme must be 'file' (mesh) or 'ply' (splats)")
-    return _load(reference, *_file_key(uri))
+    return _load(reference, *_file_key(_uri(reference)))
 
 
 @functools.lru_cache(maxsize=32)
@@ -110,16 +127,18 @@ def default_voxel_m(points_m: np.ndarray) -> float:
 
 
 def _asset(reference: str, material: str, shape: Shape, min_feature_m: float, **extra: Any) -> ObjectAsset:
-    uri = parse_asset_uri(reference, SPLAT_KEYS)
+    uri = _uri(reference)
     allowed = (material,) if "material" in dict(uri.options) else tuple(list_materials())
     return ObjectAsset(
-        name=reference,
+        name=uri.display_name(),
         category="imported",
         shape=shape,
         default_material=material,
         allowed_materials=allowed,
         textures=(_GREY,),
         min_feature_m=min_feature_m,
+        source=file_provenance(uri.path),
+        keep_scale=not uri.get_bool("resize", False),
         **extra,
     )
 

@@ -108,6 +108,10 @@ class ObjectAsset:
     """Captured splats (local frame, m) rendered instead of sampled surface Gaussians when set."""
     normals_from_mesh: bool = False
     """Surface Gaussians take the mesh's normals instead of the SDF gradient (imported meshes)."""
+    source: dict[str, str] | None = field(default=None, compare=False)
+    """User assets: provenance (``{"file": file name, "sha256": digest}``); None for library objects."""
+    keep_scale: bool = False
+    """User assets at their given scale: scenario sampling keeps their size instead of drawing one."""
 
     def __post_init__(self) -> None:
         semantic_id(self.category)

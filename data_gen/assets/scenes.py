@@ -107,8 +107,8 @@ class StaticScene:
     floor_half_extent_m: float = 3.0
     splats: SurfaceGaussians | None = field(default=None, compare=False)
     """Captured scenes: the file's splats (world frame, Z-up, m), rendered instead of floor and boxes."""
-    source: str = ""
-    """Captured scenes: the reference the scene was loaded from."""
+    source: dict[str, str] | None = field(default=None, compare=False)
+    """Captured scenes: provenance of the file (``{"file": file name, "sha256": digest}``), never its path."""
     collision_points_m: NDArray[np.float64] | None = field(default=None, compare=False, repr=False)
     """Captured scenes: (n, 3) samples of the collidable captured geometry (world, m); the solid is the
     union of balls of ``collision_radius_m`` around them (the simulator looks them up in a hash grid)."""

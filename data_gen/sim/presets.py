@@ -1,4 +1,4 @@
-"""Simulation quality presets: typed view of ``conf/quality/<name>.yaml``."""
+"""Simulation quality presets: typed view of ``newtphys/conf/quality/<name>.yaml``."""
 
 from __future__ import annotations
 
@@ -7,7 +7,9 @@ from pathlib import Path
 
 import yaml
 
-PRESET_DIR = Path(__file__).resolve().parents[2] / "conf" / "quality"
+from newtphys.config import CONFIG_DIR
+
+PRESET_DIR = CONFIG_DIR / "quality"
 
 
 @dataclass(frozen=True)
@@ -82,7 +84,7 @@ def available_presets(preset_dir: Path = PRESET_DIR) -> list[str]:
 
 
 def load_preset(name: str, preset_dir: Path = PRESET_DIR) -> QualityPreset:
-    """Load ``conf/quality/<name>.yaml``; unknown names list the valid ones."""
+    """Load ``newtphys/conf/quality/<name>.yaml``; unknown names list the valid ones."""
     path = preset_dir / f"{name}.yaml"
     if not path.is_file():
         raise ValueError(f"unknown quality preset {name!r}; valid presets: {available_presets(preset_dir)}")

@@ -128,11 +128,13 @@ def build_backbone(
     Args:
         name: registry name, one of :data:`BACKBONE_NAMES`.
         pretrained: load the real pretrained weights (from the HF cache or ``weights_path``; missing weights
-            raise :class:`WeightsUnavailableError` at once). False: same architecture, random weights seeded
+            are downloaded into the HF cache, like timm / transformers; with ``HF_HUB_OFFLINE=1`` or
+            ``allow_download=False`` they raise :class:`WeightsUnavailableError` at once). False: same architecture, random weights seeded
             by ``seed`` (logged loudly).
         layers: tapped layers (0-based); None: the model's default taps.
         image_size: int or [H, W] pixels frames are resized to; None: the model's default.
-        **overrides: ``seed`` (int, default 0), ``weights_path``, ``allow_download`` (bool, default False),
+        **overrides: ``seed`` (int, default 0), ``weights_path``, ``allow_download`` (bool, default True: fetch missing
+            weights into the HF cache as timm and transformers do, unless ``HF_HUB_OFFLINE=1``),
             ``arch_overrides`` (dict: reduced architecture for tests; only with pretrained=False),
             ``weights_id`` / ``hf_repo`` / ``supervision`` (replace the record's), and for ``sd``:
             ``timestep`` (int), ``noise_seed`` (int), ``prompt`` (str). ``None`` values mean "default".
@@ -164,7 +166,7 @@ def build_backbone(
         image_size=_check_image_size(spec, _plain(image_size)),
         seed=seed,
         weights_path=weights_path,
-        allow_download=bool(overrides.pop("allow_download", False)),
+        allow_download=bool(overrides.pop("allow_download", True)),
         arch_overrides=arch_overrides,
         **overrides,
     )

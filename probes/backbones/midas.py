@@ -48,7 +48,7 @@ def build_midas(
     image_size: tuple[int, int],
     seed: int,
     weights_path: str | os.PathLike[str] | None = None,
-    allow_download: bool = False,
+    allow_download: bool = True,
     arch_overrides: dict[str, Any] | None = None,
 ) -> DPTEncoderBackbone:
     """DPT-Large encoder; ``arch_overrides`` (DPTConfig fields) give reduced test configs."""

@@ -74,7 +74,7 @@ def build_radio(
     image_size: tuple[int, int],
     seed: int,
     weights_path: str | os.PathLike[str] | None = None,
-    allow_download: bool = False,
+    allow_download: bool = True,
     arch_overrides: dict[str, Any] | None = None,
 ) -> RadioBackbone:
     """Load AM-RADIO from the local HF cache / ``weights_path``; ``pretrained=false`` raises."""

@@ -29,7 +29,7 @@ def build_sam(
     image_size: tuple[int, int],
     seed: int,
     weights_path: str | os.PathLike[str] | None = None,
-    allow_download: bool = False,
+    allow_download: bool = True,
     arch_overrides: dict[str, Any] | None = None,
 ) -> TimmBackbone:
     """The SAM image encoder; ``image_size`` below 1024 uses interpolated position embeddings."""

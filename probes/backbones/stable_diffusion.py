@@ -163,7 +163,7 @@ def build_stable_diffusion(
     image_size: tuple[int, int],
     seed: int,
     weights_path: str | os.PathLike[str] | None = None,
-    allow_download: bool = False,
+    allow_download: bool = True,
     arch_overrides: dict[str, Any] | None = None,
     timestep: int | None = None,
     noise_seed: int | None = None,

@@ -71,7 +71,7 @@ def build_timm_vit(
     image_size: tuple[int, int],
     seed: int,
     weights_path: str | os.PathLike[str] | None = None,
-    allow_download: bool = False,
+    allow_download: bool = True,
     arch_overrides: dict[str, Any] | None = None,
 ) -> TimmBackbone:
     """A ViT of the timm family; ``arch_overrides`` (e.g. ``depth``) are for reduced test configs only."""

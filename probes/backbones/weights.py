@@ -1,10 +1,11 @@
 """Locating pretrained weights without hanging on the network.
 
 Pretrained weights are read from (in order): an explicit ``weights_path``
-(file or directory), the Hugging Face cache, or — only when the caller passes
-``allow_download=True`` and ``HF_HUB_OFFLINE`` is not set — a download. When
-none applies, :class:`WeightsUnavailableError` is raised at once with a message
-saying how to provide the weights. The cache location is computed at call time
+(file or directory), the Hugging Face cache, or a download into that cache (as
+timm and transformers do) unless ``HF_HUB_OFFLINE`` is set or the caller passes
+``allow_download=False``. When none applies, or the download fails,
+:class:`WeightsUnavailableError` is raised with a message saying how to provide
+the weights. The cache location is computed at call time
 from the environment (``HF_HUB_CACHE``, ``HF_HOME``, ``XDG_CACHE_HOME``), the
 same rules huggingface_hub applies at import.
 """
@@ -49,8 +50,17 @@ def missing_weights_message(backbone: str, repo_id: str, what: str) -> str:
         f"(1) on a machine with network run `huggingface-cli download {repo_id}` and copy the cache to "
         f"{str(hf_cache_dir())!r} (or point HF_HOME / HF_HUB_CACHE at a cache that has it); "
         f"(2) pass a local copy: backbone.weights_path=/path/to/file_or_dir; "
-        f"(3) allow downloading here: backbone.allow_download=true with HF_HUB_OFFLINE unset. "
+        f"(3) let it download here: unset HF_HUB_OFFLINE (and keep backbone.allow_download true, the default). "
         f"backbone.pretrained=false builds the same architecture with RANDOM weights instead."
+    )
+
+
+def _download_failed(backbone: str, repo_id: str, what: str, error: Exception) -> str:
+    from huggingface_hub import constants
+
+    return (
+        f"downloading {what} of {repo_id!r} for backbone {backbone!r} from {constants.ENDPOINT} failed: "
+        f"{type(error).__name__}: {error}. " + missing_weights_message(backbone, repo_id, what)
     )
 
 
@@ -88,7 +98,10 @@ def resolve_hf_file(
         from huggingface_hub import hf_hub_download
 
         logger.info("downloading %s/%s into %s", repo_id, filenames[0], cache)
-        return Path(hf_hub_download(repo_id, filenames[0], cache_dir=cache))
+        try:
+            return Path(hf_hub_download(repo_id, filenames[0], cache_dir=cache))
+        except Exception as e:  # network, auth, missing repo: say what failed and how to provide the weights
+            raise WeightsUnavailableError(_download_failed(backbone, repo_id, filenames[0], e)) from e
     raise WeightsUnavailableError(missing_weights_message(backbone, repo_id, f"one of {list(filenames)}"))
 
 
@@ -121,7 +134,10 @@ def resolve_hf_snapshot(
         pass
     if allow_download and not hf_offline():
         logger.info("downloading snapshot of %s into %s", repo_id, cache)
-        return Path(snapshot_download(repo_id, cache_dir=cache))
+        try:
+            return Path(snapshot_download(repo_id, cache_dir=cache))
+        except Exception as e:  # network, auth, missing repo: say what failed and how to provide the weights
+            raise WeightsUnavailableError(_download_failed(backbone, repo_id, "a snapshot", e)) from e
     raise WeightsUnavailableError(
         missing_weights_message(backbone, repo_id, f"a snapshot with {list(required)}")
     )

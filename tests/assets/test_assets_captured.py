@@ -166,8 +166,9 @@ def test_objects_land_on_captured_furniture(tmp_path):
     """A captured room whose table (top at 0.3 m, sampled every 2 cm) covers the placement footprint:
     objects are placed above the table and come to rest on it, a thickness above its samples, instead of
     falling through to the floor as when only the floor collided."""
-    from data_gen.pipeline import RenderSettings, build_objects, scene_layout, simulate
-    from data_gen.scene import ScenarioConfig, sample_scenario
+    from data_gen.configs import render_settings, scenario_config
+    from data_gen.pipeline import build_objects, scene_layout, simulate
+    from data_gen.scene import sample_scenario
     from data_gen.sim.presets import load_preset
 
     u, v = np.meshgrid(np.linspace(-1.5, 1.5, 61), np.linspace(-1.5, 1.5, 61), indexing="ij")
@@ -179,12 +180,12 @@ def test_objects_land_on_captured_furniture(tmp_path):
     reference = f"ply:{tmp_path}/room.ply?ground=keep"
     scene = get_scene(reference)
     assert scene.collision_radius_m == pytest.approx(0.015)  # 0.75 x the 2 cm spacing of the table top
-    cfg = ScenarioConfig(
-        scenes=(reference,), objects=("toy_brick", "ball"), num_objects=(2, 2), size_m=(0.08, 0.1),
-        camera_distance_m=(0.9, 1.1), motions={"drop": 1.0},
+    cfg = scenario_config(
+        "drop", scenes=(reference,), objects=("toy_brick", "ball"), num_objects=(2, 2), size_m=(0.08, 0.1),
+        camera_distance_m=(0.9, 1.1), drop_height_m=(0.05, 0.5), spin_rad_s=(0.0, 3.0), camera_height_m=(0.5, 1.2),
     )  # fmt: skip
     scenario = sample_scenario(cfg, "table", 3, "train", "earth", 26, 25.0, (32, 32))
-    objects = build_objects(scenario, RenderSettings(800, 400))
+    objects = build_objects(scenario, render_settings(object_gaussians=800, interior_points=400))
     result = simulate(scenario, objects, scene_layout(scenario.scene), load_preset("draft"))
     for track in result.objects:
         bottom = track.contact_positions_m[..., 2] - track.contact_radius_m[None]  # (frames, spheres)

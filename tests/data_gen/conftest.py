@@ -5,9 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
-
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+from newtphys.config import compose_config
 
 SMALL = [
     "num_frames=12",
@@ -22,8 +20,7 @@ SMALL = [
 
 
 def compose_generate(overrides: list[str]):
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="generate", overrides=SMALL + overrides)
+    return compose_config("generate", SMALL + overrides)
 
 
 def generate(out_dir: Path, overrides: list[str]):

@@ -11,7 +11,8 @@ from hydra.errors import MissingConfigException
 
 from data_gen import generator as generator_module
 from data_gen.pipeline import SequenceRejected
-from data_gen.scene import ScenarioConfig, ScenarioError, counterfactual, sample_scenario
+from data_gen.configs import scenario_config
+from data_gen.scene import ScenarioError, counterfactual, sample_scenario
 from newtphys import schema
 from newtphys.shards import ShardReader, list_shards
 from tests.data_gen.conftest import compose_generate, generate
@@ -83,13 +84,13 @@ def test_bad_config_errors() -> None:
 
 
 def test_impossible_placement_is_a_clear_error() -> None:
-    cfg = ScenarioConfig(scenes=("table",), num_objects=(10, 10), size_m=(1.5, 1.5), max_placement_tries=20)
+    cfg = scenario_config("drop", scenes=("table",), num_objects=(10, 10), size_m=(1.5, 1.5), max_placement_tries=20)
     with pytest.raises(ScenarioError, match="cannot place object .* without overlap in scene 'table'"):
         sample_scenario(cfg, "x", 0, "train", "earth", 10, 25.0, (32, 32))
 
 
 def test_scenarios_are_seeded_and_counterfactuals_change_one_thing() -> None:
-    cfg = ScenarioConfig(scenes=("empty_floor",), num_objects=(2, 2))
+    cfg = scenario_config("drop", scenes=("empty_floor",), num_objects=(2, 2))
     a = sample_scenario(cfg, "s", 5, "train", "earth", 10, 25.0, (32, 32))
     assert a == sample_scenario(cfg, "s", 5, "train", "earth", 10, 25.0, (32, 32))
     assert a != sample_scenario(cfg, "s", 6, "train", "earth", 10, 25.0, (32, 32))
@@ -111,13 +112,11 @@ def test_camera_paths_see_past_walls() -> None:
     """In the walled room_corner scene the first camera draw of this pile sequence sat 0.3 m behind a wall
     (y = -1.33 m, wall at y = -1.05 m): 8 objects were simulated for 70 s and then rejected as out of view.
     Cameras are now redrawn until, along the whole path, they stay outside the geometry and see an object."""
-    import yaml
-
     from data_gen.assets.scenes import get_scene
     from data_gen.pipeline import camera_matrices
     from data_gen.scene import CAMERA_CLEARANCE_M
 
-    cfg = ScenarioConfig.from_mapping(yaml.safe_load(Path("conf/scenario/pile.yaml").read_text()))
+    cfg = scenario_config("pile")
     for seed in (1926383459, *range(20)):
         scenario = sample_scenario(cfg, "s", seed, "train", "earth", 50, 25.0, (48, 48))
         scene = get_scene(scenario.scene)

@@ -26,11 +26,12 @@ from omegaconf import DictConfig, open_dict
 from torch.utils.data import DataLoader
 
 from newtphys import schema
+from newtphys.config import CONFIG_DIR
 from probes.datamodule import DataConfigError
 from probes.run import METRICS_FILENAME, build, run
 
 REPO = Path(__file__).resolve().parents[2]
-CONF = REPO / "conf"
+CONF = CONFIG_DIR
 # vit_tiny with random weights, 4 blocks, 64 px input (4 x 4 feature grid): cheap on CPU
 TINY_BACKBONE = [  # backbone=vit_tiny is the default of conf/train.yaml
     "backbone.pretrained=false",
