@@ -292,3 +292,16 @@ def test_unknown_task_and_backbone_list_the_valid_ones(synthetic_dataset: Path, 
         cfg.task.name = "stress"
     with pytest.raises(ValueError, match="valid tasks: collision, gravity, scene_flow"):
         build(cfg)
+
+
+def test_train_main_returns_the_monitored_validation_metric(synthetic_dataset: Path, tmp_path: Path, one_thread):
+    """A Hydra sweeper (e.g. Optuna) optimises what the task function returns: train.py's main returns the
+    monitored validation metric of the run, the same number metrics.json records."""
+    from probes.train_cli import main
+
+    cfg = _compose(tmp_path, synthetic_dataset, ["task=gravity", "logger=csv"])
+    value = main.__wrapped__(cfg)  # the function @hydra.main wraps, called with a composed config
+    metrics = json.loads((tmp_path / "run" / METRICS_FILENAME).read_text())
+    split, name = metrics["monitor"].split("/")
+    assert split == "val" and isinstance(value, float)
+    assert value == metrics["val"][name] and value == value  # finite: the tiny probe trained two epochs
