@@ -103,7 +103,7 @@ def test_bad_inputs_are_clear_errors(tmp_path):
         get_object(f"file:{path}?scale=1000")
     with pytest.raises(ValueError, match=r"scale=1e-05 .*\[0.005, 5.0\]"):
         get_object(f"file:{path}?scale=0.00001")
-    with pytest.raises(ValueError, match="unknown option 'colour'; allowed options: material, up, scale"):
+    with pytest.raises(ValueError, match="unknown option 'colour'; allowed options: name, material, up, scale, resize"):
         get_object(f"file:{path}?colour=red")
     with pytest.raises(ValueError, match="up='w'"):
         get_object(f"file:{path}?up=w")
