@@ -1,4 +1,5 @@
-"""``python -m newtphys {validate,info,view,stats}``: tools over shards that need only the core."""
+"""``python -m newtphys {validate,info,view,stats,validate-vqa}``: tools over shards and question sets that
+need only the core."""
 
 from __future__ import annotations
 
@@ -105,6 +106,27 @@ def cmd_stats(args: argparse.Namespace) -> int:
     return 0
 
 
+def _question_sets_under(path: Path) -> list[Path]:
+    """``path`` itself when it holds a question set, else every ``<path>/<split>`` that does."""
+    from newtphys.vqa_schema import QUESTIONS_FILE
+
+    if (path / QUESTIONS_FILE).is_file() or not path.is_dir():
+        return [path]
+    return sorted(p for p in path.iterdir() if (p / QUESTIONS_FILE).is_file()) or [path]
+
+
+def cmd_validate_vqa(args: argparse.Namespace) -> int:
+    from newtphys.vqa_validate import validate_question_set
+
+    sets = [s for p in args.paths for s in _question_sets_under(Path(p))]
+    problems = [problem for s in sets for problem in validate_question_set(s)]
+    errors = [p for p in problems if p.severity == "error"]
+    for p in problems:
+        print(p)
+    print(f"checked {len(sets)} question set(s): {len(errors)} error(s), {len(problems) - len(errors)} warning(s)")
+    return 1 if errors else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m newtphys", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -126,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("path", help="a split directory or dataset root")
     st.add_argument("--out", default=None, help="output directory (default: PATH/stats)")
     st.set_defaults(func=cmd_stats)
+    q = sub.add_parser("validate-vqa", help="check question sets against the VQA contract (docs/vqa_contract.md)")
+    q.add_argument("paths", nargs="+", help="a question-set directory (<vqa_dir>/<split>) or a VQA root")
+    q.set_defaults(func=cmd_validate_vqa)
     return p
 
 
