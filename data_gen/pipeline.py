@@ -36,6 +36,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from data_gen.assets.gaussians_from_geometry import SurfaceGaussians, gaussians_from_object, gaussians_from_scene
+from data_gen.assets import material_taxonomy
 from data_gen.assets.library import ObjectAsset, get_object, semantic_class_table
 from data_gen.assets.materials import get_material, material_id_table
 from data_gen.assets.scenes import StaticScene as SceneLayout
@@ -43,6 +44,8 @@ from data_gen.assets.scenes import get_scene
 from data_gen.assets.shapes import Scaled, Shape, Shell
 from data_gen.assets.voxel_shape import VoxelShape
 from data_gen.cameras import path_from_spec
+from data_gen.display_names import color_name, display_names
+from data_gen.object_boxes import oriented_box
 from data_gen.render.gaussians import Gaussians
 from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.rgb import RgbRasterizer
@@ -252,6 +255,11 @@ class SkinnedSurface:
         self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64)[:, None, :]
         self.track = track
 
+    def means_at(self, frame: int) -> np.ndarray:
+        """World centres (n, 3) m at ``frame`` (no covariance: cheap)."""
+        tm = tmat_from_z(torch.as_tensor(self.track.handle_transforms[frame], dtype=torch.float64))
+        return (self.x0 + displacement_from_tmat(self.b, tm)).numpy()
+
     def at(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World centres (n, 3) m, scales (n, 3) m and rotations (n, 4) wxyz at ``frame``."""
         tm = tmat_from_z(torch.as_tensor(self.track.handle_transforms[frame], dtype=torch.float64))
@@ -337,15 +345,29 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     return maps, K.astype(np.float32), w2c.astype(np.float32)
 
 
+def camera_fov_deg(K: np.ndarray, image_size: tuple[int, int]) -> dict[str, float]:
+    """Horizontal and vertical field of view, degrees, of intrinsics ``K`` (px) at ``image_size`` (H, W)."""
+    h, w = image_size
+    return {"fov_x_deg": float(np.degrees(2.0 * np.arctan2(0.5 * w, K[0, 0]))),
+            "fov_y_deg": float(np.degrees(2.0 * np.arctan2(0.5 * h, K[1, 1])))}
+
+
 def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
-                      maps: dict[str, np.ndarray], world_to_camera: np.ndarray, wall_time_s: float) -> WorldState:
+                      maps: dict[str, np.ndarray], K: np.ndarray, world_to_camera: np.ndarray,
+                      wall_time_s: float) -> WorldState:
+    """The world-state JSON of a generated sequence (data contract), with what questions read: per frame and
+    object the oriented box of the deformed object, per frame the camera's field of view, per object a
+    display name unique in the scene, its colour word and its material taxonomy (scene materials too)."""
     tracks = {t.object_id: t for t in result.objects}
+    surfaces = [SkinnedSurface(o.surface, tracks[o.object_id]) for o in objects]
+    fov = camera_fov_deg(K, scenario.image_size)
     frames = []
     for t in range(scenario.num_frames):
         pos, quat = geometry.camera_pose(world_to_camera[t].astype(np.float64))
         objs = []
         for k, o in enumerate(objects):
             tr = tracks[o.object_id]
+            box = oriented_box(surfaces[k].means_at(t), tr.orientation_wxyz[t])
             visible = int((maps[schema.INSTANCES][t] == o.object_id).sum())
             amodal = int(maps[schema.AMODAL_INSTANCES][t, k].sum())
             partners = sorted({int(p) for p in np.unique(tr.contact_partner[t]) if p >= 0})
@@ -354,9 +376,13 @@ def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: Sc
                 orientation=tuple(float(v) for v in tr.orientation_wxyz[t]),
                 velocity=tuple(tr.velocity_m_s[t].tolist()), angular_velocity=tuple(tr.angular_velocity_rad_s[t].tolist()),
                 visible_pixels=visible, visible_fraction=min(1.0, visible / amodal) if amodal else 0.0,
-                in_view=amodal > 0, contacts=partners,
+                in_view=amodal > 0, contacts=partners, extra={"box": box},
             ))
-        frames.append(FrameState(t, t / scenario.fps, CameraPose(tuple(pos.tolist()), tuple(quat.tolist())), objs))
+        camera = CameraPose(tuple(pos.tolist()), tuple(quat.tolist()), extra=fov)
+        frames.append(FrameState(t, t / scenario.fps, camera, objs))
+    colours = [o.surface.colors_rgb.astype(np.float64).mean(axis=0) for o in objects]
+    names = display_names([o.asset.name for o in objects], colours, [o.asset.nominal_size_m for o in objects])
+    scene_materials = [layout.floor_material] + [b.material for b in layout.boxes]
     info = result.info.to_dict()
     sim_info = SimulationInfo(
         quality=info.pop("quality"), dt=info.pop("dt"), substeps=info.pop("substeps"),
@@ -368,7 +394,9 @@ def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: Sc
         split=scenario.split, fps=scenario.fps, num_frames=scenario.num_frames, image_size=scenario.image_size,
         gravity=tuple(float(v) for v in scenario.gravity_m_s2),
         scene=SceneInfo(name=layout.name, kind=layout.kind,
-                        extra={"camera": scenario.camera.kind} | ({"source": layout.source} if layout.source else {})),
+                        extra={"camera": scenario.camera.kind,
+                               "materials": [{"name": m, **material_taxonomy.nominal(m).to_dict()} for m in scene_materials]}
+                        | ({"source": layout.source} if layout.source else {})),
         materials=material_id_table(), semantic_classes=semantic_class_table(),
         objects=[
             ObjectInfo(
@@ -377,9 +405,12 @@ def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: Sc
                 mass=tracks[o.object_id].mass_kg, volume=o.volume_m3, size=tuple(o.asset.size_m.tolist()),
                 num_handles=tracks[o.object_id].num_handles,
                 num_cubature_points=int(len(tracks[o.object_id].points_rest_m)),
-                extra={"motion": p.motion} | ({"source": o.asset.source} if o.asset.source else {}),
+                extra={"motion": p.motion, "display_name": name, "color": color_name(colour),
+                       "material_taxonomy": material_taxonomy.classify(p.material, p.young_modulus_pa,
+                                                                       p.density_kg_m3).to_dict()}
+                | ({"source": o.asset.source} if o.asset.source else {}),
             )
-            for o, p in zip(objects, scenario.objects)
+            for o, p, name, colour in zip(objects, scenario.objects, names, colours)
         ],
         frames=frames,
         collisions=[CollisionEvent(**_event_fields(e.to_dict())) for e in result.collisions],
@@ -412,6 +443,6 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
     for name, arr in maps.items():
         if arr.dtype.kind == "f" and not np.isfinite(arr).all():
             raise SequenceRejected("nan", f"map {name} has non-finite values")
-    ws = build_world_state(scenario, objects, layout, result, maps, w2c, time.perf_counter() - t0)
+    ws = build_world_state(scenario, objects, layout, result, maps, K, w2c, time.perf_counter() - t0)
     timings = {"prepare_s": t1 - t0, "simulate_s": t2 - t1, "render_s": t3 - t2}
     return SequenceArrays(maps, K, w2c, ws), timings
