@@ -1,0 +1,311 @@
+"""Write a question set from the shards of one split (what ``python generate_vqa.py`` runs).
+
+Per sequence (in parallel, resumable): pick question frames, run every question function in each of its
+modes, write the frames the items show as PNGs and the raw questions to ``parts/<sequence_id>.json``
+(atomically: a finished part is skipped on a re-run). Then, in one pass over all parts in a fixed order:
+assign the correct option's letter (balanced per question id), write ``questions.jsonl``,
+``answers.jsonl`` and ``manifest.json``. Same shards + config + seed => byte-identical files.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing
+import os
+from collections import Counter, defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+from tqdm import tqdm
+
+from data_gen.vqa.questions import REGISTRY, Context
+from data_gen.vqa.rules import NotAnswerable, Question, integer_window, multi_window, seed_of
+from data_gen.vqa.view import SequenceView
+from newtphys import __version__
+from newtphys import vqa_schema as vs
+from newtphys.shards import ShardReader, list_shards
+
+log = logging.getLogger(__name__)
+
+PARTS_DIR = "parts"
+MULTI_PREFIX = "Consider all the frames shown, in order; answer for the last one. "
+
+
+@dataclass(frozen=True)
+class VqaConfig:
+    """Typed view of ``newtphys/conf/generate_vqa.yaml``."""
+
+    data_dir: Path
+    split: str
+    out_dir: Path
+    seed: int
+    frames_per_sequence: int
+    """Question frames drawn per sequence (each frame gets every question id)."""
+    exclude_last_frames: int
+    """The last frames of a sequence are not used as question frames."""
+    min_visible_objects: int
+    question_ids: tuple[str, ...] | None
+    """None: the whole catalogue."""
+    workers: int
+    progress: bool = True
+    config_yaml: str = ""
+
+    @staticmethod
+    def from_mapping(cfg: dict[str, Any], config_yaml: str = "") -> VqaConfig:
+        known = {f for f in VqaConfig.__dataclass_fields__} - {"config_yaml"}
+        unknown, missing = sorted(set(cfg) - known), sorted(known - set(cfg) - {"progress"})
+        if unknown or missing:
+            raise ValueError(f"generate_vqa config: unknown keys {unknown}, missing keys {missing}")
+        ids = cfg["question_ids"]
+        if ids is not None:
+            bad = sorted(set(ids) - set(REGISTRY))
+            if bad:
+                raise ValueError(f"generate_vqa config: unknown question_ids {bad}; valid: {sorted(REGISTRY)}")
+        for key, low in (("frames_per_sequence", 1), ("exclude_last_frames", 0), ("min_visible_objects", 0),
+                         ("workers", 0), ("seed", 0)):  # fmt: skip
+            if int(cfg[key]) < low:
+                raise ValueError(f"generate_vqa config: {key} must be >= {low}, got {cfg[key]}")
+        return VqaConfig(
+            data_dir=Path(cfg["data_dir"]), split=str(cfg["split"]), out_dir=Path(cfg["out_dir"]), seed=int(cfg["seed"]),
+            frames_per_sequence=int(cfg["frames_per_sequence"]), exclude_last_frames=int(cfg["exclude_last_frames"]),
+            min_visible_objects=int(cfg["min_visible_objects"]), question_ids=None if ids is None else tuple(ids),
+            workers=int(cfg["workers"]), progress=bool(cfg.get("progress", True)), config_yaml=config_yaml,
+        )  # fmt: skip
+
+    @property
+    def set_dir(self) -> Path:
+        return self.out_dir / self.split
+
+
+@dataclass
+class SequenceJob:
+    shard: str
+    shard_relative: str
+    sequence_id: str
+
+
+@dataclass
+class VqaReport:
+    sequences: int = 0
+    skipped_sequences: int = 0
+    items: int = 0
+    skips: Counter = field(default_factory=Counter)
+
+    def summary(self) -> str:
+        return (f"{self.items} items from {self.sequences} sequences ({self.skipped_sequences} already done); "
+                f"{sum(self.skips.values())} questions not answerable")  # fmt: skip
+
+
+def question_frames(view: SequenceView, cfg: VqaConfig) -> list[int]:
+    """Seeded choice of usable frames: a multi-frame window fits before them, the last frames are excluded and
+    at least ``min_visible_objects`` objects are visible."""
+    usable = []
+    for t in range(view.num_frames - cfg.exclude_last_frames):
+        try:
+            multi_window(t)
+        except NotAnswerable:
+            continue
+        if len(view.visible_ids(t)) >= cfg.min_visible_objects:
+            usable.append(t)
+    rng = np.random.default_rng(seed_of(cfg.seed, view.sequence_id, "frames"))
+    if len(usable) <= cfg.frames_per_sequence:
+        return usable
+    return sorted(int(t) for t in rng.choice(usable, size=cfg.frames_per_sequence, replace=False))
+
+
+def _image_path(sequence_id: str, frame: int) -> str:
+    return f"{vs.IMAGES_DIR}/{sequence_id}/{frame:06d}.png"
+
+
+def sequence_questions(view: SequenceView, cfg: VqaConfig) -> tuple[list[dict[str, Any]], Counter, set[int]]:
+    """Raw records (before letters) of one sequence, skip counts per (question id, reason), frames to write."""
+    records: list[dict[str, Any]] = []
+    skips: Counter = Counter()
+    frames_needed: set[int] = set()
+    seen_keys: set[tuple[str, str, tuple[int, ...]]] = set()
+    ws = view.world_state
+    ids = cfg.question_ids or tuple(sorted(REGISTRY))
+    for frame in question_frames(view, cfg):
+        for qid in ids:
+            spec = vs.question_spec(qid)
+            ctx = Context(view, frame, np.random.default_rng(seed_of(cfg.seed, view.sequence_id, qid, frame)))
+            try:
+                q: Question = REGISTRY[qid](ctx)
+            except NotAnswerable as e:
+                skips[(qid, e.reason)] += 1
+                continue
+            shown_single = q.shown_frames if q.shown_frames is not None else (frame,)
+            dedupe = (qid, q.key, tuple(shown_single))
+            if dedupe in seen_keys:  # event-based questions are the same whatever the frame they were asked at
+                continue
+            seen_keys.add(dedupe)
+            pair = f"{view.sequence_id}/{qid}/{q.key}/f{shown_single[-1]}"
+            for mode in spec.modes:
+                if q.shown_frames is not None:
+                    shown = list(q.shown_frames)
+                elif mode == "single":
+                    shown = [frame]
+                else:
+                    shown = multi_window(frame)
+                frames_needed.update(shown)
+                frames_needed.update(q.option_frames or ())
+                text = q.text if mode == "single" or spec.modes == ("multi",) else MULTI_PREFIX + q.text
+                visible = view.visible_ids(shown[-1])
+                meta = {"num_objects": len(ws.objects), "num_visible": len(visible),
+                        "gravity_m_s2": round(ws.gravity_magnitude, 6), **q.meta}  # fmt: skip
+                if len(q.objects) == 1 and "young_modulus_pa" not in meta:
+                    meta["young_modulus_pa"] = view.info(q.objects[0]).young_modulus
+                records.append({
+                    "idx": f"{pair}/{mode}", "pair": pair, "question_id": qid, "category": spec.category,
+                    "sub_category": spec.sub_category, "mode": mode, "variant": vs.BASE_VARIANT, "split": ws.split,
+                    "sequence_id": view.sequence_id, "shard": view.shard_relative, "frames": shown,
+                    "question_images": [_image_path(view.sequence_id, t) for t in shown],
+                    "option_images": [_image_path(view.sequence_id, t) for t in (q.option_frames or ())],
+                    "question": text, "correct": q.correct, "distractors": list(q.distractors), "value": q.value,
+                    "unit": q.unit, "objects": [int(o) for o in q.objects], "meta": meta,
+                    "order_key": seed_of(cfg.seed, view.sequence_id, qid, q.key, shown_single[-1]),
+                })  # fmt: skip
+    return records, skips, frames_needed
+
+
+def _atomic_json(path: Path, obj: Any) -> None:
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(obj, sort_keys=True))
+    tmp.replace(path)
+
+
+def _run_sequence(args: tuple[SequenceJob, VqaConfig]) -> tuple[str, bool]:
+    job, cfg = args
+    part = cfg.set_dir / PARTS_DIR / f"{job.sequence_id}.json"
+    if part.is_file():
+        return job.sequence_id, False
+    view = SequenceView(Path(job.shard), job.sequence_id, job.shard_relative)
+    records, skips, frames = sequence_questions(view, cfg)
+    if frames:
+        ordered = sorted(frames)
+        for t, rgb in zip(ordered, view.read_rgb(ordered)):
+            path = cfg.set_dir / _image_path(job.sequence_id, t)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if not path.is_file():
+                tmp = path.with_name(path.name + f".tmp{os.getpid()}.png")
+                Image.fromarray(rgb).save(tmp, optimize=False)
+                tmp.replace(path)
+    _atomic_json(part, {"records": records, "skips": [[q, r, n] for (q, r), n in sorted(skips.items())]})
+    return job.sequence_id, True
+
+
+def list_jobs(cfg: VqaConfig) -> list[SequenceJob]:
+    split_dir = cfg.data_dir / cfg.split
+    shards = list_shards(split_dir)
+    if not shards:
+        raise FileNotFoundError(f"no shards under {split_dir} (expected {split_dir}/shard-*.h5; run generate.py first)")
+    jobs = []
+    for shard in shards:
+        with ShardReader(shard) as r:
+            for sid in r.sequences():
+                jobs.append(SequenceJob(str(shard), str(shard.relative_to(cfg.data_dir)), sid))
+    return jobs
+
+
+def assign_letters(records: list[dict[str, Any]]) -> dict[str, int]:
+    """pair -> position (0-3) of the correct option: per question id, pairs in their SHA-256 order take the
+    positions in turn, so every id's letters are balanced to within one pair."""
+    by_qid: dict[str, dict[str, int]] = defaultdict(dict)
+    for r in records:
+        by_qid[r["question_id"]][r["pair"]] = r["order_key"]
+    positions: dict[str, int] = {}
+    for qid in sorted(by_qid):
+        pairs = sorted(by_qid[qid], key=lambda p: (by_qid[qid][p], p))
+        offset = seed_of(qid) % len(vs.LETTERS)
+        for k, pair in enumerate(pairs):
+            positions[pair] = (k + offset) % len(vs.LETTERS)
+    return positions
+
+
+def finalize(record: dict[str, Any], position: int) -> tuple[vs.QuestionItem, vs.AnswerRecord]:
+    """The item and answer of a raw record with the correct option at ``position``."""
+    if record["meta"].get("ordered_integer_options"):
+        window = integer_window(int(record["value"]), position)
+        options = [str(v) for v in window]
+        position = window.index(int(record["value"]))
+        option_images: list[str] = []
+    else:
+        options = list(record["distractors"])
+        options.insert(position, record["correct"])
+        option_images = list(record["option_images"])
+        if option_images:
+            option_images = option_images[1:]
+            option_images.insert(position, record["option_images"][0])
+            options = [vs.IMAGE_OPTION] * len(vs.LETTERS)
+    item = vs.QuestionItem(
+        idx=record["idx"], pair=record["pair"], question_id=record["question_id"], category=record["category"],
+        sub_category=record["sub_category"], mode=record["mode"], variant=record["variant"], split=record["split"],
+        sequence_id=record["sequence_id"], shard=record["shard"], frames=tuple(record["frames"]),
+        images=tuple(record["question_images"] + option_images), question=record["question"],
+        options=tuple(options), objects=tuple(record["objects"]),  # type: ignore[arg-type]
+        meta={k: v for k, v in record["meta"].items() if k != "ordered_integer_options"},
+    )  # fmt: skip
+    return item, vs.AnswerRecord(record["idx"], vs.LETTERS[position], record["value"], record["unit"])
+
+
+def run_vqa_generation(cfg: VqaConfig) -> VqaReport:
+    (cfg.set_dir / PARTS_DIR).mkdir(parents=True, exist_ok=True)
+    jobs = list_jobs(cfg)
+    report = VqaReport()
+    work = [(j, cfg) for j in jobs]
+    bar = tqdm(total=len(work), desc=f"questions {cfg.split}", unit="seq", disable=not cfg.progress)
+    if cfg.workers > 1 and len(work) > 1:
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(min(cfg.workers, len(work))) as pool:
+            for _, fresh in pool.imap_unordered(_run_sequence, work):
+                report.skipped_sequences += not fresh
+                bar.update(1)
+    else:
+        for w in work:
+            report.skipped_sequences += not _run_sequence(w)[1]
+            bar.update(1)
+    bar.close()
+    records: list[dict[str, Any]] = []
+    for job in jobs:  # a fixed order: the files do not depend on which worker finished first
+        part = json.loads((cfg.set_dir / PARTS_DIR / f"{job.sequence_id}.json").read_text())
+        records += part["records"]
+        for qid, reason, n in part["skips"]:
+            report.skips[(qid, reason)] += n
+    positions = assign_letters(records)
+    finals = [finalize(r, positions[r["pair"]]) for r in records]
+    finals.sort(key=lambda f: f[0].idx)
+    vs.write_jsonl(cfg.set_dir / vs.QUESTIONS_FILE, (item.to_json() for item, _ in finals))
+    vs.write_jsonl(cfg.set_dir / vs.ANSWERS_FILE, (answer.to_json() for _, answer in finals))
+    report.sequences = len(jobs)
+    report.items = len(finals)
+    _atomic_json(cfg.set_dir / vs.MANIFEST_FILE, manifest(cfg, [f[0] for f in finals], [f[1] for f in finals], report))
+    log.info(report.summary())
+    return report
+
+
+def manifest(cfg: VqaConfig, items: Sequence[vs.QuestionItem], answers: Sequence[vs.AnswerRecord],
+             report: VqaReport) -> dict[str, Any]:  # fmt: skip
+    """Counts per category, sub-category, question id, mode, letter and number of objects; skips per id/reason."""
+    def count(values) -> dict[str, int]:
+        return dict(sorted(Counter(str(v) for v in values).items()))
+
+    skipped: dict[str, dict[str, int]] = defaultdict(dict)
+    for (qid, reason), n in sorted(report.skips.items()):
+        skipped[qid][reason] = n
+    produced = {i.question_id for i in items}
+    return {
+        "package_version": __version__, "seed": cfg.seed, "split": cfg.split, "config": cfg.config_yaml,
+        "num_items": len(items), "num_sequences": report.sequences,
+        "counts": {
+            "category": count(i.category for i in items), "sub_category": count(i.sub_category for i in items),
+            "question_id": count(i.question_id for i in items), "mode": count(i.mode for i in items),
+            "letter": count(a.answer for a in answers), "num_objects": count(i.meta["num_objects"] for i in items),
+        },
+        "skips": dict(skipped),
+        "question_ids_without_items": sorted(set(cfg.question_ids or REGISTRY) - produced),
+    }  # fmt: skip
