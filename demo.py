@@ -10,7 +10,8 @@ Steps: generate train / val / test (Earth gravity) and test_ood_gravity
 validate them (contract + cross-map physics) -> summary table and dataset
 statistics -> contact sheet and video of one sequence -> train a probe
 (the tiny ViT with RANDOM weights: no pretrained weights can be downloaded
-here) on the train split and print its metrics on both test splits.
+here) on the train split and print its metrics on both test splits -> generate
+physics questions on the test split, validate them and print their counts.
 """
 
 from __future__ import annotations
@@ -77,8 +78,19 @@ def main() -> int:
         for split in ("val", "test", "test_ood_gravity"):
             for name, value in sorted((metrics.get(split) or {}).items()):
                 print(f"   {split + '/' + name:<48} {value:.4g}")
+    vqa = out / "vqa"
+    step("generate physics questions from the test split's world states and frames (short clips: the last 4 "
+         "frames are excluded instead of 10)",
+         [py, "generate_vqa.py", f"data_dir={data}", "split=test", f"out_dir={vqa}", "exclude_last_frames=4",
+          f"paths.log_dir={out / 'logs'}"])
+    step("validate the question set against the VQA contract", [py, "-m", "newtphys", "validate-vqa", str(vqa)])
+    manifest = json.loads((vqa / "test" / "manifest.json").read_text())
+    print(f"\n== {manifest['num_items']} questions, {len(manifest['counts']['question_id'])} question ids")
+    for category, n in manifest["counts"]["category"].items():
+        print(f"   {category:<28} {n}")
+    print(f"   letters {manifest['counts']['letter']}")
     print(f"\ndone in {time.perf_counter() - t0:.0f} s; outputs under {out}:")
-    print(f"   pictures/train-000000.png, .mp4   stats/stats.png   probe/metrics.json")
+    print("   pictures/train-000000.png, .mp4   stats/stats.png   probe/metrics.json   vqa/test/questions.jsonl")
     return 0
 
 
