@@ -127,6 +127,22 @@ def cmd_validate_vqa(args: argparse.Namespace) -> int:
     return 1 if errors else 0
 
 
+def cmd_view_vqa(args: argparse.Namespace) -> int:
+    from newtphys.vqa_viz import contact_sheet
+
+    sets = _question_sets_under(Path(args.path))
+    print(f"wrote {contact_sheet(sets[0], args.out, count=args.count, seed=args.seed)}")
+    return 0
+
+
+def cmd_subset_vqa(args: argparse.Namespace) -> int:
+    from newtphys.vqa_subset import write_subset
+
+    manifest = write_subset(_question_sets_under(Path(args.path))[0], args.out, args.size, args.seed)
+    print(f"wrote {manifest['size']} items to {args.out}: per sub-category {manifest['counts']['sub_category']}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m newtphys", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -151,6 +167,18 @@ def build_parser() -> argparse.ArgumentParser:
     q = sub.add_parser("validate-vqa", help="check question sets against the VQA contract (docs/vqa_contract.md)")
     q.add_argument("paths", nargs="+", help="a question-set directory (<vqa_dir>/<split>) or a VQA root")
     q.set_defaults(func=cmd_validate_vqa)
+    vv = sub.add_parser("view-vqa", help="contact sheet of sample questions (images, question, options, answer)")
+    vv.add_argument("path", help="a question-set directory or a VQA root (its first split)")
+    vv.add_argument("--out", required=True, help="output PNG")
+    vv.add_argument("--count", type=int, default=12)
+    vv.add_argument("--seed", type=int, default=0)
+    vv.set_defaults(func=cmd_view_vqa)
+    sb = sub.add_parser("subset-vqa", help="balanced subset: equal per sub-category, about equal per object count")
+    sb.add_argument("path", help="a question-set directory or a VQA root (its first split)")
+    sb.add_argument("--out", required=True, help="output question-set directory")
+    sb.add_argument("--size", type=int, default=15000)
+    sb.add_argument("--seed", type=int, default=42)
+    sb.set_defaults(func=cmd_subset_vqa)
     return p
 
 

@@ -231,3 +231,35 @@ def test_old_shards_get_a_clear_error(push_data: Path, tmp_path: Path) -> None:
         f[sid][schema.WORLD_STATE].attrs[schema.UNITS_ATTR] = schema.WORLD_STATE_UNIT
     with pytest.raises(MissingWorldStateField, match=r"lacks 'objects\[\]\.display_name'.*regenerate the split"):
         SequenceView(shard, sid, "test/" + shard.name)
+
+
+def test_balanced_subset_is_equal_per_sub_category_and_seeded(question_set: Path, tmp_path: Path) -> None:
+    from newtphys.vqa_subset import balanced_subset, write_subset
+
+    all_items = vs.read_items(question_set)
+    quota = 3
+    subs = {s for s, n in Counter(i.sub_category for i in all_items).items() if n >= quota}
+    items = [i for i in all_items if i.sub_category in subs]  # sub-categories that can fill the quota
+    chosen = balanced_subset(items, quota * len(subs), seed=42)
+    assert Counter(i.sub_category for i in chosen) == {s: quota for s in subs}
+    short = balanced_subset(all_items, 100, seed=42)  # small sub-categories give all they have, the rest share
+    counts = Counter(i.sub_category for i in short)
+    assert len(short) == 100 and max(counts.values()) - min(n for s, n in counts.items() if n >= quota) <= 1
+    assert [i.idx for i in chosen] == [i.idx for i in balanced_subset(items, quota * len(subs), seed=42)]
+    assert [i.idx for i in chosen] != [i.idx for i in balanced_subset(items, quota * len(subs), seed=7)]
+    manifest = write_subset(question_set, tmp_path / "sub", quota * len(subs), seed=42)
+    assert manifest["size"] == quota * len(subs)
+    assert validate_question_set(tmp_path / "sub") == []  # a subset is a question set of its own
+
+
+def test_contact_sheet_draws_the_sampled_items(question_set: Path, tmp_path: Path) -> None:
+    from PIL import Image as PILImage
+
+    from newtphys.cli import main as cli_main
+    from newtphys.vqa_viz import sample_items
+
+    picked = sample_items(vs.read_items(question_set), 6, seed=0)
+    assert len({i.question_id for i in picked}) == 6  # one item per question id
+    assert cli_main(["view-vqa", str(question_set), "--out", str(tmp_path / "sheet.png"), "--count", "6"]) == 0
+    with PILImage.open(tmp_path / "sheet.png") as im:
+        assert im.size[1] > 6 * 150  # one row per item
