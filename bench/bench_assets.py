@@ -33,7 +33,7 @@ from data_gen.assets.library import get_object, list_objects
 from data_gen.assets.meshing import clear_mesh_cache, solid_volume_m3, surface_mesh
 from data_gen.assets.ply_io import encode_gaussians, points_inside_mesh, read_splat_ply, write_splat_ply
 from data_gen.assets.shapes import Scaled, Shape, Shell, mesh_sdf
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 RESULTS = Path(__file__).parent / "results" / "assets.json"
 LIBRARY_PNG = Path(__file__).parent / "results" / "assets_library.png"

@@ -59,6 +59,7 @@ from data_gen.sim.threads import torch_threads
 from data_gen.sim.world import SimObjectSpec, Simulator
 from newtphys import geometry, schema
 from newtphys.consistency import optical_flow_from_scene_flow
+from newtphys.rotations import matrix_to_quat, quat_to_matrix
 from newtphys.shards import SequenceArrays
 from newtphys.world_state import (
     CameraPose,
@@ -242,7 +243,7 @@ class SkinnedSurface:
         self.x0 = x0
         self.b = affine_basis(x0, w.to(torch.float64))
         self.c = deformation_basis(x0, w.to(torch.float64), g.to(torch.float64))
-        rot = torch.as_tensor(geometry.quat_to_matrix(surface.rotations_wxyz.astype(np.float64)))
+        rot = torch.as_tensor(quat_to_matrix(surface.rotations_wxyz.astype(np.float64)))
         self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64)[:, None, :]
         self.track = track
 
@@ -253,7 +254,7 @@ class SkinnedSurface:
         m = deformation_from_tmat(self.c, tm) @ self.rs
         u, sv, _ = torch.linalg.svd(m)
         u[:, :, 2] *= torch.sign(torch.linalg.det(u))[:, None]  # proper rotation; cov = U S^2 U^T unchanged
-        return x.numpy(), sv.clamp_min(1e-9).numpy(), geometry.matrix_to_quat(u.numpy())
+        return x.numpy(), sv.clamp_min(1e-9).numpy(), matrix_to_quat(u.numpy())
 
 
 def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,

@@ -25,7 +25,7 @@ from data_gen.assets.materials import sample_material
 from data_gen.assets.scenes import get_scene, list_scenes
 from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, path_from_spec, sample_camera_spec
 from newtphys import schema
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import axis_angle_to_quat, quat_to_matrix
 
 MOTIONS = ("drop", "throw", "push")
 
@@ -154,8 +154,8 @@ def _random_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
 
 
 def _yaw_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
-    a = rng.uniform(0, 2 * np.pi)
-    return (float(np.cos(a / 2)), 0.0, 0.0, float(np.sin(a / 2)))
+    q = axis_angle_to_quat((0.0, 0.0, 1.0), rng.uniform(0, 2 * np.pi))
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
 def _uniform(rng: np.random.Generator, r: Sequence[float]) -> float:

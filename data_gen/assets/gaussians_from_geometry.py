@@ -37,7 +37,7 @@ from trimesh.visual import ColorVisuals, TextureVisuals
 from data_gen.assets.library import ObjectAsset
 from data_gen.assets.scenes import SceneBox, StaticScene
 from data_gen.assets.shapes import Shape
-from newtphys.geometry import matrix_to_quat, quat_to_matrix
+from newtphys.rotations import matrix_to_quat, quat_multiply, quat_to_matrix
 
 FloatArray = NDArray[np.floating[Any]]  # stored as float32 after validation
 IntArray = NDArray[np.integer[Any]]
@@ -118,23 +118,6 @@ def concatenate(items: list[SurfaceGaussians]) -> SurfaceGaussians:
             np.concatenate([getattr(g, f) for g in items])
             for f in ("means_m", "scales_m", "rotations_wxyz", "colors_rgb", "opacities", "part_ids")
         )
-    )
-
-
-def quat_multiply(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """Hamilton product a * b of (w, x, y, z) quaternions (broadcast over leading dims)."""
-    a = np.asarray(a, np.float64)
-    b = np.asarray(b, np.float64)
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
     )
 
 

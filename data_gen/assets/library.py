@@ -49,9 +49,9 @@ from data_gen.assets.shapes import (
     Sphere,
     Torus,
     Union,
-    axis_angle_wxyz,
     place,
 )
+from newtphys.rotations import axis_angle_to_quat
 
 if TYPE_CHECKING:  # runtime imports would be circular (these modules import ObjectAsset)
     from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
@@ -253,12 +253,10 @@ def _solid(rgb: RGB) -> ProceduralTexture:
     return ProceduralTexture("solid", (rgb,))
 
 
-def _rot(axis: tuple[float, float, float], deg: float) -> tuple[float, float, float, float]:
-    return axis_angle_wxyz(axis, np.deg2rad(deg))
-
-
-_ALONG_X = _rot((0.0, 1.0, 0.0), 90.0)  # maps local z to world x
-_ALONG_Y = _rot((1.0, 0.0, 0.0), 90.0)  # maps local z to world -y (axial shapes are symmetric)
+X_AXIS, Y_AXIS = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
+_ALONG_X = axis_angle_to_quat(Y_AXIS, np.deg2rad(90.0))  # maps local z to world x
+# maps local z to world -y (axial shapes are symmetric)
+_ALONG_Y = axis_angle_to_quat(X_AXIS, np.deg2rad(90.0))
 
 
 def _centred(shape: Shape) -> Shape:
@@ -273,7 +271,7 @@ def _frustum(z0: float, z1: float, r0: float, r1: float, part_id: int = 0) -> Sh
     wide_z = z0 if r0 > r1 else z1
     apex_up = r0 > r1
     cone_center_z = wide_z + (height / 2 if apex_up else -height / 2)
-    rot = (1.0, 0.0, 0.0, 0.0) if apex_up else _rot((1.0, 0.0, 0.0), 180.0)
+    rot = (1.0, 0.0, 0.0, 0.0) if apex_up else axis_angle_to_quat(X_AXIS, np.deg2rad(180.0))
     cone = place(Cone(max(r0, r1), height, part_id), (0.0, 0.0, cone_center_z), rot)
     slab = place(
         Box((max(r0, r1) * 1.5, max(r0, r1) * 1.5, (z1 - z0) / 2), part_id), (0.0, 0.0, (z0 + z1) / 2)
@@ -309,7 +307,7 @@ def _rugby_ball() -> Shape:
 
 def _mug() -> Shape:
     body = Cylinder(0.04, 0.05)
-    handle = place(Torus(0.025, 0.006), (0.045, 0.0, 0.0), _rot((1.0, 0.0, 0.0), 90.0))
+    handle = place(Torus(0.025, 0.006), (0.045, 0.0, 0.0), axis_angle_to_quat(X_AXIS, np.deg2rad(90.0)))
     cavity = place(Cylinder(0.034, 0.05, 1), (0.0, 0.0, 0.008))
     return Difference(Union((body, handle)), cavity)
 
@@ -361,7 +359,11 @@ def _rubber_duck() -> Shape:
             place(Ellipsoid((0.016, 0.012, 0.005), 1), (0.058, 0.0, 0.04)),
             place(Sphere(0.005, 2), (0.05, 0.012, 0.056)),
             place(Sphere(0.005, 2), (0.05, -0.012, 0.056)),
-            place(Ellipsoid((0.012, 0.008, 0.018)), (-0.048, 0.0, 0.022), _rot((0.0, 1.0, 0.0), -30.0)),
+            place(
+                Ellipsoid((0.012, 0.008, 0.018)),
+                (-0.048, 0.0, 0.022),
+                axis_angle_to_quat(Y_AXIS, np.deg2rad(-30.0)),
+            ),
         )
     )
 
@@ -375,7 +377,8 @@ def _teddy_bear() -> Shape:
     ]
     for y in (-1.0, 1.0):
         parts.append(place(Sphere(0.022), (0.0, 0.045 * y, 0.18)))
-        parts.append(place(Capsule(0.02, 0.03), (0.02, 0.07 * y, 0.03), _rot((1.0, 0.0, 0.0), 30.0 * y)))
+        tilt = axis_angle_to_quat(X_AXIS, np.deg2rad(30.0 * y))
+        parts.append(place(Capsule(0.02, 0.03), (0.02, 0.07 * y, 0.03), tilt))
         parts.append(place(Capsule(0.025, 0.025), (0.04, 0.04 * y, -0.075), _ALONG_X))
     return Union(tuple(parts))
 
@@ -460,7 +463,7 @@ def _bag() -> Shape:
     return Union(
         (
             RoundedBox((0.16, 0.06, 0.12), 0.03),
-            place(Torus(0.07, 0.008, 1), (0.0, 0.0, 0.12), _rot((1.0, 0.0, 0.0), 90.0)),
+            place(Torus(0.07, 0.008, 1), (0.0, 0.0, 0.12), axis_angle_to_quat(X_AXIS, np.deg2rad(90.0))),
         )
     )
 
@@ -522,7 +525,7 @@ def _toy_brick() -> Shape:
 def _spinning_top() -> Shape:
     return Union(
         (
-            place(Cone(0.03, 0.04), (0.0, 0.0, -0.02), _rot((1.0, 0.0, 0.0), 180.0)),
+            place(Cone(0.03, 0.04), (0.0, 0.0, -0.02), axis_angle_to_quat(X_AXIS, np.deg2rad(180.0))),
             place(Cylinder(0.03, 0.006), (0.0, 0.0, 0.004)),  # overlaps the cone: no touching faces
             place(Cylinder(0.005, 0.015, 1), (0.0, 0.0, 0.023)),
         )

@@ -28,8 +28,8 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from data_gen.assets.gaussians_from_geometry import FloatArray, SurfaceGaussians, quat_multiply
-from newtphys.geometry import matrix_to_quat
+from data_gen.assets.gaussians_from_geometry import FloatArray, SurfaceGaussians
+from newtphys.rotations import matrix_to_quat, quat_multiply, rotation_between
 
 SH_C0 = 0.28209479177387814
 OPACITY_EPS = 1e-6  # opacities are clipped to [eps, 1 - eps] before the logit
@@ -297,18 +297,12 @@ def read_splat_ply(path: str | os.PathLike[str]) -> SplatPly:
 # Frame conversion: metric scale + up axis -> Z-up
 # --------------------------------------------------------------------------- #
 def up_axis_rotation(up_axis: str) -> NDArray[np.float64]:
-    """Proper rotation (3, 3) taking the file's ``up_axis`` to +z (e.g. "y": (x, y, z) -> (x, -z, y))."""
-    table = {
-        "z": np.eye(3),
-        "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),  # +90 deg about x
-        "-y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]),  # -90 deg about x
-        "x": np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),  # -90 deg about y
-        "-x": np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]),  # +90 deg about y
-        "-z": np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]),  # 180 deg about x
-    }
-    if up_axis not in table:
+    """Proper rotation (3, 3) taking the file's ``up_axis`` to +z: the smallest such rotation, 180 deg about x
+    for "-z" (e.g. "y" is +90 deg about x: (x, y, z) -> (x, -z, y)); entries are exactly 0 and +-1."""
+    if up_axis not in UP_AXES:
         raise ValueError(f"up_axis must be one of {UP_AXES}, got {up_axis!r}")
-    return table[up_axis]
+    sign = -1.0 if up_axis.startswith("-") else 1.0
+    return rotation_between(sign * np.eye(3)["xyz".index(up_axis[-1])], (0.0, 0.0, 1.0))
 
 
 def _check_scale(scale: float, path: object) -> float:

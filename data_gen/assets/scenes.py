@@ -25,7 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data_gen.assets.materials import ProceduralTexture, get_material
-from data_gen.assets.shapes import Box, Transformed, axis_angle_wxyz
+from data_gen.assets.shapes import Box, Transformed
+from newtphys.rotations import axis_angle_to_quat
 
 if TYPE_CHECKING:  # a runtime import would be circular (gaussians_from_geometry imports this module)
     from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
@@ -308,7 +309,7 @@ def _ramp() -> StaticScene:
     angle = np.deg2rad(RAMP_ANGLE_DEG)
     half_len, half_thick = 0.6, 0.02
     # the plank rises toward -x: rotate about +y by +angle (x axis tilts down at +x)
-    rot = axis_angle_wxyz((0.0, 1.0, 0.0), angle)
+    rot = tuple(axis_angle_to_quat((0.0, 1.0, 0.0), angle).tolist())
     cz = half_len * np.sin(angle) + half_thick * np.cos(angle)  # lowest corner touches z = 0
     ramp = SceneBox(
         "ramp", (0.0, 0.0, float(cz)), (half_len, 0.3, half_thick), "wood", _planks(WOOD, 0.1, 0, seed=8), rot

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]

@@ -30,8 +30,9 @@ from data_gen.sim.skinning import (
     train_skinning_basis,
 )
 from data_gen.sim.solver import ImplicitEulerSolver, SimBody, SimulationError
-from data_gen.sim.static_scene import StaticScene, quat_wxyz_to_matrix
+from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.threads import torch_threads
+from newtphys.rotations import quat_to_matrix
 
 __all__ = ["SimObjectSpec", "Simulator", "SimulationError"]
 
@@ -156,7 +157,7 @@ class Simulator:
             basis = train_skinning_basis(
                 pts, num_h, mat.poisson_ratio, settings=settings, seed=seed, cache_dir=self.cache_dir
             )
-        rot = quat_wxyz_to_matrix(np.asarray(spec.orientation_wxyz))
+        rot = quat_to_matrix(spec.orientation_wxyz)
         pos = np.asarray(spec.position_m, dtype=np.float64)
 
         def scene_side(points: torch.Tensor) -> torch.Tensor:

@@ -14,12 +14,11 @@ from data_gen.assets.gaussians_from_geometry import (
     gaussians_from_object,
     gaussians_from_scene,
     gaussians_from_shape,
-    quat_multiply,
 )
 from data_gen.assets.library import get_object
 from data_gen.assets.scenes import get_scene
 from data_gen.assets.shapes import Cylinder, Sphere, Union, place
-from newtphys.geometry import matrix_to_quat, quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 
 def coverage(g: SurfaceGaussians, queries: np.ndarray, k: int = 16) -> float:
@@ -132,17 +131,6 @@ def test_transformed_moves_means_and_rotations():
     )
     both = concatenate([g, h])
     assert len(both) == 400
-
-
-def test_quat_multiply_matches_matrix_product():
-    rng = np.random.default_rng(0)
-    a, b = rng.normal(size=(50, 4)), rng.normal(size=(50, 4))
-    a /= np.linalg.norm(a, axis=1, keepdims=True)
-    b /= np.linalg.norm(b, axis=1, keepdims=True)
-    np.testing.assert_allclose(
-        quat_to_matrix(quat_multiply(a, b)), quat_to_matrix(a) @ quat_to_matrix(b), atol=1e-12
-    )
-    np.testing.assert_allclose(np.abs(matrix_to_quat(quat_to_matrix(a))), np.abs(a), atol=1e-12)
 
 
 def test_surface_gaussians_validation():

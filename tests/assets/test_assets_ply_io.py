@@ -23,7 +23,7 @@ from data_gen.assets.ply_io import (
     up_axis_rotation,
     write_splat_ply,
 )
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 FIELDS = ("positions", "normals", "f_dc", "f_rest", "opacity_logit", "log_scales", "rotations_wxyz")
 
