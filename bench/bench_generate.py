@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from data_gen.pipeline import RenderSettings, SequenceRejected, generate_sequence
-from data_gen.scene import ScenarioConfig, sample_scenario
+from data_gen.scenario import ScenarioConfig, sample_scenario
 from data_gen.sim.presets import load_preset
 from newtphys.shards import ShardWriter
 

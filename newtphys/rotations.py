@@ -84,7 +84,13 @@ def matrix_to_quat(m: ArrayLike) -> F64:
         if case == 0:
             s = np.sqrt(1.0 + tr[sel]) * 2
             q[sel] = np.stack(
-                [0.25 * s, (a[:, 2, 1] - a[:, 1, 2]) / s, (a[:, 0, 2] - a[:, 2, 0]) / s, (a[:, 1, 0] - a[:, 0, 1]) / s], 1
+                [
+                    0.25 * s,
+                    (a[:, 2, 1] - a[:, 1, 2]) / s,
+                    (a[:, 0, 2] - a[:, 2, 0]) / s,
+                    (a[:, 1, 0] - a[:, 0, 1]) / s,
+                ],
+                1,
             )
             continue
         i = case - 1
@@ -153,7 +159,9 @@ def rotation_between(from_dir: ArrayLike, to_dir: ArrayLike) -> F64:
     """
     a = _as_vectors("from_dir", from_dir, 3)
     b = _as_vectors("to_dir", to_dir, 3)
-    a, b = np.broadcast_arrays(a / np.linalg.norm(a, axis=-1, keepdims=True), b / np.linalg.norm(b, axis=-1, keepdims=True))
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    a, b = np.broadcast_arrays(a, b)
     c = np.einsum("...i,...i->...", a, b)
     k = _skew(np.cross(a, b))
     opposite = c < -1.0 + 1e-12

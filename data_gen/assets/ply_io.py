@@ -8,10 +8,10 @@ degree d, so 0, 9, 24 or 45 values), ``opacity`` (logit), ``scale_0..2``
 Colour = 0.5 + C0 * f_dc with C0 = 0.28209479177387814 (the degree-0 SH constant).
 
 ``read_splat_ply`` / ``write_splat_ply`` move the raw encoded fields
-(``SplatPly``) bit-exactly. ``import_splats`` decodes to ``SurfaceGaussians``
+(``SplatPly``) bit-exactly. ``import_splats`` decodes to ``Gaussians``
 with a metric scale factor and an up-axis conversion to Z-up (positions,
 orientations and view-dependent SH rotate together); ``export_splats`` encodes
-any ``SurfaceGaussians``. Meshes (OBJ/PLY/GLB/STL/OFF) come in through
+any ``Gaussians``. Meshes (OBJ/PLY/GLB/STL/OFF) come in through
 ``import_mesh`` with the same options and a watertightness check; inside tests
 on any mesh use the generalised winding number (``points_inside_mesh``, warp).
 """
@@ -22,18 +22,20 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from data_gen.assets.gaussians_from_geometry import FloatArray, SurfaceGaussians
+from data_gen.gaussians import Gaussians
 from newtphys.rotations import matrix_to_quat, quat_multiply, rotation_between
 
 SH_C0 = 0.28209479177387814
 OPACITY_EPS = 1e-6  # opacities are clipped to [eps, 1 - eps] before the logit
 UP_AXES = ("z", "y", "-y", "x", "-x", "-z")
+FloatArray = NDArray[np.floating[Any]]  # stored as float32 after validation
 _PLY_TYPES = {
     "float": "<f4",
     "float32": "<f4",
@@ -120,8 +122,14 @@ class SplatPly:
 # --------------------------------------------------------------------------- #
 # Encoding
 # --------------------------------------------------------------------------- #
-def encode_gaussians(g: SurfaceGaussians, f_rest: ArrayLike | None = None) -> SplatPly:
-    """SurfaceGaussians -> raw INRIA fields (f_dc from colour, logit opacity, log scales)."""
+def encode_gaussians(g: Gaussians, f_rest: ArrayLike | None = None) -> SplatPly:
+    """Gaussians -> raw INRIA fields (f_dc from colour, logit opacity, log scales)."""
+    if g.scales_m is None or g.rotations_wxyz is None:
+        raise ValueError("encode_gaussians: the INRIA layout needs Gaussians given by scales_m + rotations_wxyz")
+    if n_flat := int((g.scales_m <= 0.0).any(axis=1).sum()):
+        raise ValueError(
+            f"encode_gaussians: scales_m must be > 0 m (the file stores their log); {n_flat} rows are not"
+        )
     n = len(g)
     rest = np.zeros((n, 3, 0), np.float32) if f_rest is None else np.asarray(f_rest, np.float32)
     op = np.clip(g.opacities.astype(np.float64), OPACITY_EPS, 1.0 - OPACITY_EPS)
@@ -136,8 +144,8 @@ def encode_gaussians(g: SurfaceGaussians, f_rest: ArrayLike | None = None) -> Sp
     )
 
 
-def decode_splats(ply: SplatPly) -> SurfaceGaussians:
-    """Raw INRIA fields -> SurfaceGaussians (colour clipped to [0, 1], rotations normalised); f_rest dropped."""
+def decode_splats(ply: SplatPly) -> Gaussians:
+    """Raw INRIA fields -> Gaussians (colour clipped to [0, 1], rotations normalised); f_rest dropped."""
     q = ply.rotations_wxyz.astype(np.float64)
     norm = np.linalg.norm(q, axis=1, keepdims=True)
     if len(q) and norm.min() < 1e-12:
@@ -145,13 +153,12 @@ def decode_splats(ply: SplatPly) -> SurfaceGaussians:
     colors = np.clip(0.5 + SH_C0 * ply.f_dc.astype(np.float64), 0.0, 1.0)
     opac = 1.0 / (1.0 + np.exp(-ply.opacity_logit.astype(np.float64)))
     opac = np.clip(opac, np.finfo(np.float32).tiny, 1.0)
-    return SurfaceGaussians(
-        ply.positions,
-        np.exp(ply.log_scales.astype(np.float64)),
-        q / norm,
-        colors,
-        opac,
-        np.zeros(len(ply), np.int32),
+    return Gaussians(
+        means_m=ply.positions,
+        scales_m=np.exp(ply.log_scales.astype(np.float64)),
+        rotations_wxyz=q / norm,
+        colors_rgb=colors,
+        opacities=opac,
     )
 
 
@@ -384,15 +391,15 @@ def import_splats(
     scale: float = 1.0,
     up_axis: str = "z",
     translation_m: ArrayLike = (0.0, 0.0, 0.0),
-) -> tuple[SurfaceGaussians, SplatPly]:
+) -> tuple[Gaussians, SplatPly]:
     """Read a splat .ply into world Gaussians (Z-up, metres) and the transformed raw fields (with SH)."""
     _check_scale(scale, path)
     raw = transform_splats(read_splat_ply(path), scale, up_axis, translation_m)
     return decode_splats(raw), raw
 
 
-def export_splats(path: str | os.PathLike[str], gaussians: SurfaceGaussians) -> None:
-    """Write any SurfaceGaussians as an INRIA splat .ply (SH degree 0)."""
+def export_splats(path: str | os.PathLike[str], gaussians: Gaussians) -> None:
+    """Write any Gaussians as an INRIA splat .ply (SH degree 0)."""
     write_splat_ply(path, encode_gaussians(gaussians))
 
 

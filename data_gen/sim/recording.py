@@ -166,8 +166,9 @@ class ContactEventTracker:
 
 
 @dataclass
-class SimulationInfo:
-    """Run summary (the world state's ``simulation`` entry)."""
+class SimulationRunSummary:
+    """What a simulation run did: settings, step counts, wall times (s) and solver counters; ``to_dict`` is
+    the world state's ``simulation`` entry (``newtphys.world_state.SimulationInfo``)."""
 
     quality: str
     dt_s: float
@@ -208,7 +209,7 @@ class SimulationResult:
     gravity_m_s2: np.ndarray
     objects: list[ObjectTrack]
     collisions: list[ContactEvent]
-    info: SimulationInfo
+    info: SimulationRunSummary
     energies_j: dict[str, np.ndarray]  # kinetic / elastic / contact / gravity, each (T,)
 
     @property

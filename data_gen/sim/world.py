@@ -20,7 +20,7 @@ from data_gen.sim.contact_points import ContactPoints, SurfaceSamples, surface_s
 from data_gen.sim.cubature import sample_cubature
 from data_gen.sim.material import Material
 from data_gen.sim.presets import QualityPreset, load_preset
-from data_gen.sim.recording import ContactEventTracker, FrameRecorder, SimulationInfo, SimulationResult
+from data_gen.sim.recording import ContactEventTracker, FrameRecorder, SimulationRunSummary, SimulationResult
 from data_gen.sim.reduced import DTYPE, ReducedObject, z_to_q
 from data_gen.sim.skinning import (
     SkinningBasis,
@@ -279,7 +279,7 @@ class Simulator:
             if (step + 1) % sub == 0:
                 self._record(recorder, solver)
         wall = time.perf_counter() - t_start
-        info = SimulationInfo(
+        info = SimulationRunSummary(
             quality=self.preset.name,
             dt_s=dt,
             substeps=sub,

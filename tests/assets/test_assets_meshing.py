@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from data_gen.assets import meshing
-from data_gen.assets.library import get_object
+from data_gen.assets.registry import get_object
 from data_gen.assets.shapes import Box, Scaled, Sphere, mesh_sdf, place
 from newtphys.rotations import axis_angle_to_quat
 

@@ -11,7 +11,7 @@ from hydra.errors import MissingConfigException
 
 from data_gen import generator as generator_module
 from data_gen.pipeline import SequenceRejected
-from data_gen.scene import ScenarioConfig, ScenarioError, counterfactual, sample_scenario
+from data_gen.scenario import ScenarioConfig, ScenarioError, counterfactual, sample_scenario
 from newtphys import schema
 from newtphys.shards import ShardReader, list_shards
 from tests.data_gen.conftest import compose_generate, generate
@@ -113,14 +113,14 @@ def test_camera_paths_see_past_walls() -> None:
     Cameras are now redrawn until, along the whole path, they stay outside the geometry and see an object."""
     import yaml
 
-    from data_gen.assets.scenes import get_scene
+    from data_gen.assets.registry import get_scene_layout
     from data_gen.pipeline import camera_matrices
-    from data_gen.scene import CAMERA_CLEARANCE_M
+    from data_gen.scenario import CAMERA_CLEARANCE_M
 
     cfg = ScenarioConfig.from_mapping(yaml.safe_load(Path("conf/scenario/pile.yaml").read_text()))
     for seed in (1926383459, *range(20)):
         scenario = sample_scenario(cfg, "s", seed, "train", "earth", 50, 25.0, (48, 48))
-        scene = get_scene(scenario.scene)
+        scene = get_scene_layout(scenario.scene)
         _, w2c = camera_matrices(scenario)
         eyes = np.einsum("fji,fj->fi", w2c[:, :3, :3], -w2c[:, :3, 3])  # camera centres -R^T t, m
         assert scene.sdf(eyes).min() >= CAMERA_CLEARANCE_M, (seed, scenario.scene)

@@ -99,7 +99,8 @@ def test_axis_angle_matches_rodrigues_and_batches() -> None:
 
 def test_quat_multiply_composes_rotations() -> None:
     a, b = random_unit_quats(500, seed=5), random_unit_quats(500, seed=6)
-    np.testing.assert_allclose(quat_to_matrix(quat_multiply(a, b)), quat_to_matrix(a) @ quat_to_matrix(b), atol=1e-14)
+    product = quat_to_matrix(quat_multiply(a, b))
+    np.testing.assert_allclose(product, quat_to_matrix(a) @ quat_to_matrix(b), atol=1e-14)
     # by hand: a quarter turn about z twice is a half turn about z
     qz = QUARTER_TURNS["z"][0]
     np.testing.assert_allclose(quat_multiply(qz, qz), [0.0, 0.0, 0.0, 1.0], atol=1e-15)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 from data_gen.render.projection import (
     DEFAULT_DILATION_PX2,
     _rotation_wxyz,

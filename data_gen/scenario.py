@@ -1,6 +1,6 @@
 """Scenarios: what happens in one sequence, drawn from a config and a seed.
 
-A :class:`Scenario` is declarative and complete: static scene name, every
+A :class:`Scenario` is declarative and complete: scene layout name, every
 object (asset, size, material parameters, pose, velocities), gravity, camera
 path parameters, frame count and image size. The simulator, the renderer
 and the shard writer all read the same scenario and never change it.
@@ -20,9 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from data_gen.assets.library import get_object, list_objects
 from data_gen.assets.materials import sample_material
-from data_gen.assets.scenes import get_scene, list_scenes
+from data_gen.assets.registry import (
+    get_object,
+    get_scene_layout,
+    is_object_name,
+    is_scene_layout_name,
+    list_objects,
+    list_scene_layouts,
+)
 from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, path_from_spec, sample_camera_spec
 from newtphys import schema
 from newtphys.rotations import axis_angle_to_quat, quat_to_matrix
@@ -114,10 +120,12 @@ class ScenarioConfig:
 
     def check(self) -> None:
         for s in self.scenes:
-            if s not in list_scenes():
-                raise ScenarioError(f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scenes()}")
+            if not is_scene_layout_name(s):
+                raise ScenarioError(
+                    f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scene_layouts()} or ply:<path>"
+                )
         for o in self.objects or ():
-            if o not in list_objects():
+            if not is_object_name(o):
                 raise ScenarioError(f"scenario '{self.name}': unknown object {o!r}; valid objects: {list_objects()}")
         lo, hi = self.num_objects
         if not 1 <= lo <= hi <= 10:
@@ -182,7 +190,7 @@ def sample_scenario(
     ss = np.random.SeedSequence(seed)
     rng_scene, rng_obj, rng_cam, rng_g = (np.random.default_rng(s) for s in ss.spawn(4))
     scene_name = cfg.scenes[int(rng_scene.integers(len(cfg.scenes)))]
-    scene = get_scene(scene_name)
+    scene = get_scene_layout(scene_name)
     pool = list(cfg.objects or list_objects())
     n = int(rng_obj.integers(cfg.num_objects[0], cfg.num_objects[1] + 1))
     motions = list(cfg.motions)
