@@ -28,12 +28,13 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians, gaussians_from_mesh
-from data_gen.assets.library import get_object, list_objects
+from data_gen.assets.gaussians_from_geometry import gaussians_from_mesh
 from data_gen.assets.meshing import clear_mesh_cache, solid_volume_m3, surface_mesh
 from data_gen.assets.ply_io import encode_gaussians, points_inside_mesh, read_splat_ply, write_splat_ply
+from data_gen.assets.registry import get_object, list_objects
 from data_gen.assets.shapes import Scaled, Shape, Shell, mesh_sdf
-from newtphys.geometry import quat_to_matrix
+from data_gen.gaussians import Gaussians
+from newtphys.rotations import quat_to_matrix
 
 RESULTS = Path(__file__).parent / "results" / "assets.json"
 LIBRARY_PNG = Path(__file__).parent / "results" / "assets_library.png"
@@ -48,7 +49,7 @@ def timed(fn, repeat: int = 3):
     return best, out
 
 
-def coverage(g: SurfaceGaussians, queries: np.ndarray, k: int = 16) -> float:
+def coverage(g: Gaussians, queries: np.ndarray, k: int = 16) -> float:
     _, idx = cKDTree(g.means_m).query(queries, k=k)
     rot = quat_to_matrix(g.rotations_wxyz[idx].astype(np.float64))
     local = np.einsum("nkji,nkj->nki", rot, queries[:, None, :] - g.means_m[idx])
@@ -183,13 +184,12 @@ def bench_gaussians() -> dict:
 def bench_ply(n: int = 1_000_000) -> dict:
     rng = np.random.default_rng(2)
     q = rng.normal(size=(n, 4))
-    g = SurfaceGaussians(
-        rng.normal(size=(n, 3)),
-        rng.uniform(1e-3, 1e-2, (n, 3)),
-        q / np.linalg.norm(q, axis=1, keepdims=True),
-        rng.uniform(0, 1, (n, 3)),
-        rng.uniform(0.1, 0.99, n),
-        np.zeros(n),
+    g = Gaussians(
+        means_m=rng.normal(size=(n, 3)),
+        scales_m=rng.uniform(1e-3, 1e-2, (n, 3)),
+        rotations_wxyz=q / np.linalg.norm(q, axis=1, keepdims=True),
+        colors_rgb=rng.uniform(0, 1, (n, 3)),
+        opacities=rng.uniform(0.1, 0.99, n),
     )
     ply = encode_gaussians(g)
     raw = np.zeros((n, 17), np.float32)

@@ -21,7 +21,7 @@ import numpy as np
 
 from data_gen.configs import render_settings, scenario_config
 from data_gen.pipeline import SequenceRejected, generate_sequence
-from data_gen.scene import sample_scenario
+from data_gen.scenario import sample_scenario
 from data_gen.sim.presets import load_preset
 from newtphys.shards import ShardWriter
 

@@ -40,7 +40,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.projection import project_gaussians
 from data_gen.render.reference_torch import render_label_index_torch, render_rgb_torch

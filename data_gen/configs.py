@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 from data_gen.generator import GenerationConfig
 from data_gen.pipeline import RenderSettings
-from data_gen.scene import ScenarioConfig
+from data_gen.scenario import ScenarioConfig
 from newtphys.config import compose_config
 
 

@@ -17,17 +17,19 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians, concatenate, gaussians_from_scene
+from data_gen.assets.gaussians_from_geometry import gaussians_from_scene
 from data_gen.assets.ply_io import export_splats
+from data_gen.assets.registry import get_scene_layout
+from data_gen.gaussians import Gaussians, concatenate
 from data_gen.generator import GenerationConfig
-from data_gen.pipeline import SkinnedSurface, build_objects, scene_layout, simulate
-from data_gen.scene import sample_scenario
+from data_gen.pipeline import SkinnedSurface, build_objects, simulate
+from data_gen.scenario import sample_scenario
 from data_gen.sim.threads import torch_threads
 from newtphys import schema
 from newtphys.shards import ShardReader
 
 
-def scene_gaussians_at(shard: str | Path, sequence_id: str, frame: int) -> SurfaceGaussians:
+def scene_gaussians_at(shard: str | Path, sequence_id: str, frame: int) -> Gaussians:
     """Static scene + deformed object Gaussians of a generated sequence at ``frame`` (world frame, m).
 
     ``part_ids`` of the result hold the object id of each Gaussian (0 = static scene).
@@ -40,18 +42,17 @@ def scene_gaussians_at(shard: str | Path, sequence_id: str, frame: int) -> Surfa
     cfg = GenerationConfig.from_mapping(config)
     scenario = sample_scenario(cfg.scenario, sequence_id, ws.seed, ws.split, cfg.gravity, ws.num_frames, ws.fps,
                                tuple(ws.image_size))
-    layout = scene_layout(scenario.scene)
+    layout = get_scene_layout(scenario.scene)
     objects = build_objects(scenario, cfg.render)
     result = simulate(scenario, objects, layout, cfg.quality, cfg.skinning_cache_dir)
     scene = gaussians_from_scene(layout, spacing_m=cfg.render.scene_spacing_m)
-    scene.part_ids = np.zeros(len(scene), np.int32)  # here part_ids hold object ids: 0 = static scene
-    parts = [scene]
+    parts = [scene.with_part_ids(np.zeros(len(scene), np.int32))]  # here part ids hold object ids: 0 = scene
     tracks = {t.object_id: t for t in result.objects}
     with torch_threads(1):
         for o in objects:
             x, scales, rot = SkinnedSurface(o.surface, tracks[o.object_id]).at(frame)
-            parts.append(SurfaceGaussians(x, scales, rot, o.surface.colors_rgb, o.surface.opacities,
-                                          np.full(len(x), o.object_id, np.int32)))
+            parts.append(Gaussians(means_m=x, scales_m=scales, rotations_wxyz=rot, colors_rgb=o.surface.colors_rgb,
+                                   opacities=o.surface.opacities, part_ids=np.full(len(x), o.object_id, np.int32)))
     return concatenate(parts)
 
 

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from data_gen.assets.meshing import enable_disk_cache
 from data_gen.pipeline import RenderSettings, SequenceRejected, generate_sequence
-from data_gen.scene import ScenarioConfig, ScenarioError, sample_scenario
+from data_gen.scenario import ScenarioConfig, ScenarioError, sample_scenario
 from data_gen.sim.presets import QualityPreset
 from newtphys import __version__, schema
 from newtphys.shards import ShardReader, ShardWriter, read_index, update_index, ShardError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from newtphys import geometry
+from newtphys.rotations import quat_to_matrix
 
 
 def oriented_box(points_world_m: ArrayLike, rotation_wxyz: ArrayLike) -> dict[str, list[float]]:
@@ -16,7 +16,7 @@ def oriented_box(points_world_m: ArrayLike, rotation_wxyz: ArrayLike) -> dict[st
     """
     p = np.asarray(points_world_m, np.float64)
     q = np.asarray(rotation_wxyz, np.float64)
-    r = geometry.quat_to_matrix(q)
+    r = quat_to_matrix(q)
     local = p @ r  # rows: R^T p
     lo, hi = local.min(axis=0), local.max(axis=0)
     centre = r @ (0.5 * (lo + hi))

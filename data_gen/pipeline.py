@@ -1,12 +1,12 @@
 """Scenario -> simulate -> render every map -> world state: one sequence of the data contract.
 
-Steps (each reads the same :class:`~data_gen.scene.Scenario`, none changes it):
+Steps (each reads the same :class:`~data_gen.scenario.Scenario`, none changes it):
 
 1. **Objects** (:func:`build_objects`): the library asset is scaled and
    coloured; interior points (simulation only, never rendered) and surface
    Gaussians (rendering only) are sampled in the asset's local frame.
 2. **Simulate** (:mod:`data_gen.sim`): reduced elastodynamics of all objects
-   in the static scene under the scenario's gravity.
+   in the scene layout's static geometry under the scenario's gravity.
 3. **Render** (:func:`render_sequence`): per frame, every surface Gaussian is
    moved through the skinning map (centre) and the local deformation gradient
    (covariance ``F Σ Fᵀ``); RGB is alpha-composited, labels come from the
@@ -35,33 +35,33 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians, gaussians_from_object, gaussians_from_scene
 from data_gen.assets import material_taxonomy
-from data_gen.assets.library import ObjectAsset, get_object, semantic_class_table
+from data_gen.assets.gaussians_from_geometry import gaussians_from_object, gaussians_from_scene
 from data_gen.assets.materials import get_material, material_id_table
-from data_gen.assets.scenes import StaticScene as SceneLayout
-from data_gen.assets.scenes import get_scene
+from data_gen.assets.object_asset import ObjectAsset, semantic_class_table
+from data_gen.assets.registry import get_object, get_scene_layout
+from data_gen.assets.scene_layout import SceneLayout
 from data_gen.assets.shapes import Scaled, Shape, Shell
 from data_gen.assets.voxel_shape import VoxelShape
 from data_gen.cameras import path_from_spec
 from data_gen.display_names import color_name, display_names
+from data_gen.gaussians import Gaussians
 from data_gen.object_boxes import oriented_box
-from data_gen.render.gaussians import Gaussians
 from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.rgb import RgbRasterizer
-from data_gen.scene import Scenario
+from data_gen.scenario import Scenario
 from data_gen.sim.contact_points import SurfaceSamples
 from data_gen.sim.material import Material
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.recording import SimulationResult
 from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_from_tmat, displacement_from_tmat, tmat_from_z
 from data_gen.sim.solver import SimulationError
-from data_gen.sim.static_scene import StaticBox, StaticPoints
-from data_gen.sim.static_scene import StaticScene as SimStaticScene
+from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
 from data_gen.sim.threads import torch_threads
 from data_gen.sim.world import SimObjectSpec, Simulator
 from newtphys import geometry, schema
 from newtphys.consistency import optical_flow_from_scene_flow
+from newtphys.rotations import matrix_to_quat, quat_to_matrix
 from newtphys.shards import SequenceArrays
 from newtphys.world_state import (
     CameraPose,
@@ -120,17 +120,13 @@ class SceneObject:
 
     object_id: int
     asset: ObjectAsset
-    surface: SurfaceGaussians
+    surface: Gaussians
     interior_points_m: np.ndarray
     volume_m3: float
     contact_surface: SurfaceSamples
     material: Material
     material_id: int
     semantic_id: int
-
-
-def scene_layout(name: str) -> SceneLayout:
-    return get_scene(name)
 
 
 def envelope_sdf(shape: Shape):
@@ -149,13 +145,13 @@ def envelope_sdf(shape: Shape):
     return shape.sdf
 
 
-def sim_static_scene(layout: SceneLayout) -> SimStaticScene:
+def sim_static_scene(layout: SceneLayout) -> StaticScene:
     """The kinematic collision geometry of a layout: ground plane, oriented boxes and (captured scenes)
     the collision points of the captured geometry."""
     points = None
     if layout.collision_points_m is not None:
         points = StaticPoints(layout.collision_points_m, layout.collision_radius_m)
-    return SimStaticScene(
+    return StaticScene(
         ground=True,
         boxes=tuple(StaticBox(tuple(b.center_m), tuple(b.half_extents_m), tuple(b.rotation_wxyz)) for b in layout.boxes),
         points=points,
@@ -245,13 +241,13 @@ class SkinnedSurface:
     SVD of F R S, so it stays a valid Gaussian by construction.
     """
 
-    def __init__(self, surface: SurfaceGaussians, track) -> None:
+    def __init__(self, surface: Gaussians, track) -> None:
         x0 = torch.as_tensor(surface.means_m, dtype=torch.float64)
         w, g = track.basis.evaluate(x0)
         self.x0 = x0
         self.b = affine_basis(x0, w.to(torch.float64))
         self.c = deformation_basis(x0, w.to(torch.float64), g.to(torch.float64))
-        rot = torch.as_tensor(geometry.quat_to_matrix(surface.rotations_wxyz.astype(np.float64)))
+        rot = torch.as_tensor(quat_to_matrix(surface.rotations_wxyz.astype(np.float64)))
         self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64)[:, None, :]
         self.track = track
 
@@ -267,7 +263,7 @@ class SkinnedSurface:
         m = deformation_from_tmat(self.c, tm) @ self.rs
         u, sv, _ = torch.linalg.svd(m)
         u[:, :, 2] *= torch.sign(torch.linalg.det(u))[:, None]  # proper rotation; cov = U S^2 U^T unchanged
-        return x.numpy(), sv.clamp_min(1e-9).numpy(), geometry.matrix_to_quat(u.numpy())
+        return x.numpy(), sv.clamp_min(1e-9).numpy(), matrix_to_quat(u.numpy())
 
 
 def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
@@ -428,7 +424,7 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
                       skinning_cache_dir: str | None = None) -> tuple[SequenceArrays, dict[str, float]]:
     """One sequence of the contract, plus wall times (s) of its stages. Raises SequenceRejected."""
     t0 = time.perf_counter()
-    layout = scene_layout(scenario.scene)
+    layout = get_scene_layout(scenario.scene)
     objects = build_objects(scenario, settings)
     t1 = time.perf_counter()
     result = simulate(scenario, objects, layout, preset, skinning_cache_dir)

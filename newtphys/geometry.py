@@ -7,7 +7,7 @@ Conventions (DESIGN.md section 2):
 * ``world_to_camera`` is a 4x4 rigid transform; ``K`` is 3x3 intrinsics in
   pixels with the pixel (u, v) = (column, row) and pixel centres at integer
   coordinates + 0.5 (the centre of the top-left pixel is (0.5, 0.5)).
-* Quaternions are (w, x, y, z), unit norm.
+* Quaternions are (w, x, y, z), unit norm; rotation maths lives in ``newtphys.rotations``.
 
 Every function accepts arrays with leading batch dimensions.
 """
@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from newtphys.rotations import matrix_to_quat as matrix_to_quat  # re-exported: one implementation
+from newtphys.rotations import quat_to_matrix as quat_to_matrix  # re-exported: one implementation
 
 F64 = NDArray[np.float64]
 
@@ -121,59 +124,6 @@ def backproject_depth(depth_m: ArrayLike, K: ArrayLike) -> F64:
     d = np.asarray(depth_m, np.float64)
     rays = camera_rays(K, d.shape[-2], d.shape[-1])
     return rays * d[..., None]
-
-
-# --------------------------------------------------------------------------- #
-# Rotations
-# --------------------------------------------------------------------------- #
-def quat_to_matrix(q: ArrayLike) -> F64:
-    """(w, x, y, z) unit quaternions (..., 4) -> rotation matrices (..., 3, 3)."""
-    q = np.asarray(q, np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_quat(m: ArrayLike) -> F64:
-    """Rotation matrices (..., 3, 3) -> (w, x, y, z) unit quaternions with w >= 0."""
-    m = np.asarray(m, np.float64)
-    batch = m.shape[:-2]
-    m = m.reshape(-1, 3, 3)
-    # Shepperd's method: choose the largest of the four diagonal combinations.
-    tr = np.trace(m, axis1=1, axis2=2)
-    diag = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
-    pick = np.argmax(diag, axis=1)
-    q = np.empty((m.shape[0], 4))
-    for case in range(4):  # four cases, vectorised over the batch
-        sel = pick == case
-        if not np.any(sel):
-            continue
-        a = m[sel]
-        if case == 0:
-            s = np.sqrt(1.0 + tr[sel]) * 2
-            q[sel] = np.stack(
-                [0.25 * s, (a[:, 2, 1] - a[:, 1, 2]) / s, (a[:, 0, 2] - a[:, 2, 0]) / s, (a[:, 1, 0] - a[:, 0, 1]) / s], 1
-            )
-        else:
-            i = case - 1
-            j, k = (i + 1) % 3, (i + 2) % 3
-            s = np.sqrt(1.0 + a[:, i, i] - a[:, j, j] - a[:, k, k]) * 2
-            comp = np.empty((a.shape[0], 4))
-            comp[:, 0] = (a[:, k, j] - a[:, j, k]) / s
-            comp[:, 1 + i] = 0.25 * s
-            comp[:, 1 + j] = (a[:, j, i] + a[:, i, j]) / s
-            comp[:, 1 + k] = (a[:, k, i] + a[:, i, k]) / s
-            q[sel] = comp
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return q.reshape(batch + (4,))
 
 
 def camera_pose(world_to_camera: ArrayLike) -> tuple[F64, F64]:

@@ -1,6 +1,6 @@
-"""Captured 3DGS scenes as ``StaticScene``s: the file's splats render, the ground plane z = 0 collides.
+"""Captured 3DGS scenes as ``SceneLayout``s: the file's splats render; the floor and the captured geometry collide.
 
-Reference syntax (``scenes.get_scene`` forwards it)::
+Reference syntax (``registry.get_scene_layout`` forwards it)::
 
     ply:<path>?up=<axis>&scale=<factor>&ground=<auto|keep>&material=<name>&collide=<splats|floor>&thickness=<m>
 
@@ -34,15 +34,15 @@ box but at most ``MAX_REGION_HALF_M`` per side, from 0.1 to 0.9 m above the floo
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
 
 from data_gen.assets.asset_uri import file_provenance, parse_asset_uri
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
 from data_gen.assets.materials import ProceduralTexture, get_material
 from data_gen.assets.ply_io import UP_AXES, import_splats
-from data_gen.assets.scenes import PlacementRegion, StaticScene
+from data_gen.assets.scene_layout import PlacementRegion, SceneLayout
 
 SCENE_KEYS = ("name", "up", "scale", "ground", "material", "collide", "thickness")
 GROUND_PERCENTILE = 1.0
@@ -85,8 +85,8 @@ def _options(uri) -> tuple[str, str, str, float, str, float | None]:
     return up, ground, material, scale, collide, thickness
 
 
-def captured_scene(reference: str) -> StaticScene:
-    """The ``StaticScene`` of a ``ply:`` scene reference (cached per reference and file version)."""
+def captured_scene(reference: str) -> SceneLayout:
+    """The ``SceneLayout`` of a ``ply:`` scene reference (cached per reference and file version)."""
     uri = parse_asset_uri(reference, SCENE_KEYS)
     if not uri.path.is_file():
         raise FileNotFoundError(f"ply: scene file not found: {uri.path}")
@@ -95,7 +95,7 @@ def captured_scene(reference: str) -> StaticScene:
 
 
 @functools.lru_cache(maxsize=8)
-def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
+def _load(reference: str, _mtime_ns: int, _size: int) -> SceneLayout:
     uri = parse_asset_uri(reference, SCENE_KEYS)
     up, ground, material, scale, collide, thickness = _options(uri)
     g, _ = import_splats(uri.path, scale=scale, up_axis=up)
@@ -117,10 +117,8 @@ def _load(reference: str, _mtime_ns: int, _size: int) -> StaticScene:
         (float(centre[0] + half[0]), float(centre[1] + half[1]), REGION_Z_M[1]),
     )
     points, radius = _collision_points(solid, thickness) if collide == "splats" else (None, 0.0)
-    splats = SurfaceGaussians(
-        means, g.scales_m, g.rotations_wxyz, g.colors_rgb, g.opacities, np.zeros(len(means), np.int32)
-    )
-    return StaticScene(
+    splats = dataclasses.replace(g, means_m=means)
+    return SceneLayout(
         name=uri.display_name(),
         kind="captured",
         floor_texture=_FLOOR_TEXTURE,

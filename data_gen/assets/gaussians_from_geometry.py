@@ -25,7 +25,6 @@ Everything is deterministic: random sampling draws only from the generator passe
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -34,12 +33,12 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 from trimesh.visual import ColorVisuals, TextureVisuals
 
-from data_gen.assets.library import ObjectAsset
-from data_gen.assets.scenes import SceneBox, StaticScene
+from data_gen.assets.object_asset import ObjectAsset
+from data_gen.assets.scene_layout import SceneBox, SceneLayout
 from data_gen.assets.shapes import Shape
-from newtphys.geometry import matrix_to_quat, quat_to_matrix
+from data_gen.gaussians import Gaussians, concatenate
+from newtphys.rotations import matrix_to_quat, quat_to_matrix
 
-FloatArray = NDArray[np.floating[Any]]  # stored as float32 after validation
 IntArray = NDArray[np.integer[Any]]
 ColorFn = Callable[[NDArray[np.float64], NDArray[np.int64]], NDArray[np.float64]]  # (points, face ids) -> rgb
 NormalFn = Callable[
@@ -50,92 +49,6 @@ DEFAULT_OPACITY = 0.95
 KNN_SIGMA_FACTOR = 1.2
 GRID_SIGMA_FACTOR = 0.75
 NORMAL_SCALE_RATIO = 0.1
-
-
-@dataclass
-class SurfaceGaussians:
-    """Plain numpy Gaussians: means (n, 3) m, std-dev scales (n, 3) m, rotations (n, 4) unit (w, x, y, z)
-    mapping local axes to the frame of the means, colours (n, 3) RGB in [0, 1], opacities (n,) in (0, 1],
-    part ids (n,) int32 (object part / scene box + 1, 0 = main part or floor)."""
-
-    means_m: FloatArray
-    scales_m: FloatArray
-    rotations_wxyz: FloatArray
-    colors_rgb: FloatArray
-    opacities: FloatArray
-    part_ids: IntArray
-
-    def __post_init__(self) -> None:
-        self.means_m = np.ascontiguousarray(self.means_m, np.float32)
-        self.scales_m = np.ascontiguousarray(self.scales_m, np.float32)
-        self.rotations_wxyz = np.ascontiguousarray(self.rotations_wxyz, np.float32)
-        self.colors_rgb = np.ascontiguousarray(self.colors_rgb, np.float32)
-        self.opacities = np.ascontiguousarray(self.opacities, np.float32)
-        self.part_ids = np.ascontiguousarray(self.part_ids, np.int32)
-        n = len(self.means_m)
-        shapes = {
-            "means_m": (n, 3),
-            "scales_m": (n, 3),
-            "rotations_wxyz": (n, 4),
-            "colors_rgb": (n, 3),
-            "opacities": (n,),
-            "part_ids": (n,),
-        }
-        for name, shape in shapes.items():
-            got = getattr(self, name).shape
-            if got != shape:
-                raise ValueError(f"SurfaceGaussians.{name} must have shape {shape}, got {got}")
-        for name in ("means_m", "scales_m", "rotations_wxyz", "colors_rgb", "opacities"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise ValueError(f"SurfaceGaussians.{name} holds NaN or inf values")
-        if n and self.scales_m.min() <= 0.0:
-            raise ValueError(f"SurfaceGaussians.scales_m must be > 0 m, min is {self.scales_m.min()}")
-        if n and (self.opacities.min() <= 0.0 or self.opacities.max() > 1.0):
-            raise ValueError(
-                f"SurfaceGaussians.opacities must be in (0, 1], got [{self.opacities.min()}, "
-                f"{self.opacities.max()}]"
-            )
-
-    def __len__(self) -> int:
-        return len(self.means_m)
-
-    def transformed(self, transform: ArrayLike) -> SurfaceGaussians:
-        """The Gaussians moved by a rigid 4x4 transform (means and rotations; scales unchanged)."""
-        m = np.asarray(transform, np.float64)
-        if m.shape != (4, 4):
-            raise ValueError(f"transform must be a 4x4 rigid matrix, got shape {m.shape}")
-        means = self.means_m.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
-        q = quat_multiply(matrix_to_quat(m[:3, :3])[None, :], self.rotations_wxyz.astype(np.float64))
-        return SurfaceGaussians(means, self.scales_m, q, self.colors_rgb, self.opacities, self.part_ids)
-
-
-def concatenate(items: list[SurfaceGaussians]) -> SurfaceGaussians:
-    """One SurfaceGaussians holding all of ``items`` in order."""
-    if not items:
-        raise ValueError("concatenate: items must hold at least one SurfaceGaussians")
-    return SurfaceGaussians(
-        *(
-            np.concatenate([getattr(g, f) for g in items])
-            for f in ("means_m", "scales_m", "rotations_wxyz", "colors_rgb", "opacities", "part_ids")
-        )
-    )
-
-
-def quat_multiply(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """Hamilton product a * b of (w, x, y, z) quaternions (broadcast over leading dims)."""
-    a = np.asarray(a, np.float64)
-    b = np.asarray(b, np.float64)
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
 
 
 def tangent_frames(normals: ArrayLike, tangent_hint: ArrayLike) -> NDArray[np.float64]:
@@ -219,7 +132,7 @@ def gaussians_from_mesh(
     sigma_factor: float = KNN_SIGMA_FACTOR,
     normal_scale_ratio: float = NORMAL_SCALE_RATIO,
     even: bool = True,
-) -> SurfaceGaussians:
+) -> Gaussians:
     """Flat surface Gaussians on ``mesh`` (its frame, m): ``count`` samples, or area / spacing_m^2 of them.
 
     ``even`` thins area-uniform random samples so that no two are closer than a
@@ -263,8 +176,13 @@ def gaussians_from_mesh(
         color_fn(points, face_ids) if color_fn is not None else mesh_visual_colors(mesh, points, face_ids)
     )
     parts = part_ids_fn(points, face_ids) if part_ids_fn is not None else np.zeros(n, np.int32)
-    return SurfaceGaussians(
-        points, scales, matrix_to_quat(frames), np.clip(colors, 0.0, 1.0), np.full(n, opacity), parts
+    return Gaussians(
+        means_m=points,
+        scales_m=scales,
+        rotations_wxyz=matrix_to_quat(frames),
+        colors_rgb=np.clip(colors, 0.0, 1.0),
+        opacities=np.full(n, opacity),
+        part_ids=parts,
     )
 
 
@@ -275,7 +193,7 @@ def gaussians_from_object(
     spacing_m: float | None = None,
     count: int | None = None,
     opacity: float = DEFAULT_OPACITY,
-) -> SurfaceGaussians:
+) -> Gaussians:
     """Surface Gaussians of an object in its local frame; colours from its textures, part ids from its SDF.
 
     Only the visible surface is sampled (a hollow object's inner wall is never rendered).
@@ -321,7 +239,7 @@ def gaussians_from_shape(
     spacing_m: float | None = None,
     count: int | None = None,
     opacity: float = DEFAULT_OPACITY,
-) -> SurfaceGaussians:
+) -> Gaussians:
     """Surface Gaussians of any primitive or composed shape, one solid colour per part id."""
     missing = [p for p in shape.part_ids() if p not in part_colors_rgb]
     if missing:
@@ -372,8 +290,8 @@ def _plane_grid(half_u: float, half_v: float, spacing_m: float) -> tuple[NDArray
 
 
 def floor_gaussians(
-    scene: StaticScene, spacing_m: float, opacity: float = DEFAULT_OPACITY
-) -> SurfaceGaussians:
+    scene: SceneLayout, spacing_m: float, opacity: float = DEFAULT_OPACITY
+) -> Gaussians:
     """The textured floor square of ``scene`` (z = 0, normal +z) as a grid of flat Gaussians; part id 0."""
     if not spacing_m > 0.0:
         raise ValueError(f"spacing_m must be > 0 m, got {spacing_m}")
@@ -387,19 +305,19 @@ def floor_gaussians(
     sig = GRID_SIGMA_FACTOR * max(du, dv)
     scales = np.tile([sig, sig, NORMAL_SCALE_RATIO * sig], (len(uv), 1))
     rot = np.tile([1.0, 0.0, 0.0, 0.0], (len(uv), 1))
-    return SurfaceGaussians(
-        means,
-        scales,
-        rot,
-        scene.floor_texture.colors_at(means),
-        np.full(len(uv), opacity),
-        np.zeros(len(uv), np.int32),
+    return Gaussians(
+        means_m=means,
+        scales_m=scales,
+        rotations_wxyz=rot,
+        colors_rgb=scene.floor_texture.colors_at(means),
+        opacities=np.full(len(uv), opacity),
+        part_ids=np.zeros(len(uv), np.int32),
     )
 
 
 def box_gaussians(
     box: SceneBox, spacing_m: float, part_id: int, opacity: float = DEFAULT_OPACITY
-) -> SurfaceGaussians:
+) -> Gaussians:
     """The six faces of an oriented box as grids of flat Gaussians (world frame)."""
     h = np.asarray(box.half_extents_m, np.float64)
     rot = quat_to_matrix(np.asarray(box.rotation_wxyz, np.float64))
@@ -421,19 +339,19 @@ def box_gaussians(
             frames.append(np.broadcast_to(frame, (len(uv), 3, 3)))
     m = np.concatenate(means)
     n = len(m)
-    return SurfaceGaussians(
-        m,
-        np.concatenate(scales),
-        matrix_to_quat(np.concatenate(frames)),
-        box.texture.colors_at(m),
-        np.full(n, opacity),
-        np.full(n, part_id, np.int32),
+    return Gaussians(
+        means_m=m,
+        scales_m=np.concatenate(scales),
+        rotations_wxyz=matrix_to_quat(np.concatenate(frames)),
+        colors_rgb=box.texture.colors_at(m),
+        opacities=np.full(n, opacity),
+        part_ids=np.full(n, part_id, np.int32),
     )
 
 
 def gaussians_from_scene(
-    scene: StaticScene, spacing_m: float = 0.02, opacity: float = DEFAULT_OPACITY
-) -> SurfaceGaussians:
+    scene: SceneLayout, spacing_m: float = 0.02, opacity: float = DEFAULT_OPACITY
+) -> Gaussians:
     """Floor (part 0) and every box k (part k + 1) of ``scene`` as Gaussians, world frame.
 
     A captured scene (``scene.splats`` set) returns the file's splats (all part 0, the floor's material);

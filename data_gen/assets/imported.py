@@ -1,6 +1,6 @@
 """User objects from files: triangle meshes and captured 3DGS splat objects, as ``ObjectAsset``s.
 
-Reference syntax (``library.get_object`` forwards these)::
+Reference syntax (``registry.get_object`` forwards these)::
 
     file:<path>?material=<name>&up=<axis>&scale=<factor>
     ply:<path>?material=<name>&up=<axis>&scale=<factor>&voxel=<m>
@@ -33,6 +33,7 @@ rescale it (counterfactuals do).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import warnings
 from typing import Any
@@ -42,10 +43,9 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from data_gen.assets.asset_uri import AssetUri, file_provenance, parse_asset_uri
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
-from data_gen.assets.library import MAX_SIZE_M, MIN_SIZE_M, ObjectAsset
 from data_gen.assets.materials import ProceduralTexture, get_material, list_materials
 from data_gen.assets.mesh_shape import MeshColors, MeshShape
+from data_gen.assets.object_asset import MAX_SIZE_M, MIN_SIZE_M, ObjectAsset
 from data_gen.assets.ply_io import UP_AXES, import_mesh, import_splats
 from data_gen.assets.shapes import Shape
 from data_gen.assets.voxel_shape import VoxelShape
@@ -194,13 +194,5 @@ def splat_object(reference: str) -> ObjectAsset:
             f"{reference}: the splat centres enclose no volume at voxel={voxel:g} m (the voxelised surface has "
             "holes or is one voxel thick); pass a larger voxel=<m>"
         )
-    means = gaussians.means_m.astype(np.float64) - centre
-    splats = SurfaceGaussians(
-        means,
-        gaussians.scales_m,
-        gaussians.rotations_wxyz,
-        gaussians.colors_rgb,
-        gaussians.opacities,
-        np.zeros(len(means), np.int32),
-    )
+    splats = dataclasses.replace(gaussians, means_m=gaussians.means_m.astype(np.float64) - centre)
     return _asset(reference, material, shape, voxel, splats=splats)

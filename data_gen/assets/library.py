@@ -1,38 +1,27 @@
 """Object library: everyday-like objects built from composed primitives, as data.
 
-Each ``ObjectAsset`` holds a unique name, a semantic category (ids 1-based in
-``CATEGORIES`` order; 0 = background), a default material class and allowed
-alternatives, a shape in metres (local frame: z up, bounds centred at the
-origin), and one procedural texture per part id.
+Each entry of ``_SPECS`` declares an object: its semantic category, default and
+alternative material classes, one procedural texture per part id, the thinnest
+feature (which sets the meshing resolution), a builder of its shape (local
+frame, z up, centred on its bounds) and, for hollow objects (bottle, can, jar,
+cardboard box, bag, balls, rubber duck, traffic cone), a wall thickness: those
+become closed ``Shell``s.  ``library_object(name)`` builds the ``ObjectAsset``
+(cached); adding an object is adding one entry.
 
-``get_object(name, size_m=None)`` returns an asset, optionally scaled uniformly
-so that its largest extent is ``size_m``; an unknown name lists the valid ones.
-The simulator takes ``interior_points`` + ``volume_m3`` + a sampled material;
-the renderer takes surface Gaussians made from ``to_mesh`` and ``colors_at``.
-
-Hollow objects (bottle, can, jar, cardboard box, bag, balls, rubber duck,
-traffic cone) are closed ``Shell``s with a per-object wall thickness:
-``volume_m3`` and ``interior_points`` describe the wall material only, while
-``to_mesh`` (what is rendered) is the outer surface only.
-
-Besides library names, ``get_object`` takes user assets (see ``data_gen.assets.imported``):
-``"file:/path/mesh.obj?material=rubber&up=y&scale=0.01"`` (OBJ/PLY/GLB/STL/OFF
-mesh) and ``"ply:/path/object.ply?up=y&scale=1.0"`` (a 3DGS splat object).
+Scenarios look objects up through ``data_gen.assets.registry.get_object``, which
+also resolves user assets (``file:`` meshes and ``ply:`` splat objects).
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
-import trimesh
-from numpy.typing import ArrayLike, NDArray
 
-from data_gen.assets.materials import RGB, ProceduralTexture, get_material, sample_palette_color
-from data_gen.assets.meshing import solid_volume_m3, surface_mesh
+from data_gen.assets.materials import RGB, ProceduralTexture
+from data_gen.assets.object_asset import ObjectAsset
 from data_gen.assets.shapes import (
     Box,
     Capsule,
@@ -43,211 +32,14 @@ from data_gen.assets.shapes import (
     Intersection,
     Offset,
     RoundedBox,
-    Scaled,
     Shape,
     Shell,
     Sphere,
     Torus,
     Union,
-    axis_angle_wxyz,
     place,
 )
-
-if TYPE_CHECKING:  # runtime imports would be circular (these modules import ObjectAsset)
-    from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
-    from data_gen.assets.mesh_shape import MeshColors
-
-CATEGORIES: tuple[str, ...] = (
-    "ball",
-    "container",
-    "tableware",
-    "footwear",
-    "toy",
-    "plush_toy",
-    "furniture",
-    "book",
-    "box",
-    "sports",
-    "food",
-    "bedding",
-    "cleaning",
-    "stationery",
-    "bag",
-    "tool",
-    "imported",  # meshes and splats brought in by users (appended last: earlier ids never change)
-)
-MIN_SIZE_M, MAX_SIZE_M = 0.005, 5.0
-
-
-def semantic_id(category: str) -> int:
-    """1-based semantic class id of ``category`` (0 is background)."""
-    if category not in CATEGORIES:
-        raise KeyError(f"unknown category {category!r}; valid categories: {', '.join(CATEGORIES)}")
-    return CATEGORIES.index(category) + 1
-
-
-def semantic_class_table() -> dict[str, str]:
-    """World-state ``semantic_classes`` table: {"<id>": category}."""
-    return {str(i + 1): c for i, c in enumerate(CATEGORIES)}
-
-
-@dataclass(frozen=True)
-class ObjectAsset:
-    """One library object. Lengths in metres; ``textures[k]`` colours the surface owned by part id k."""
-
-    name: str
-    category: str
-    shape: Shape
-    default_material: str
-    allowed_materials: tuple[str, ...]
-    textures: tuple[ProceduralTexture, ...]
-    min_feature_m: float  # thinnest part, sets the default meshing resolution (shell walls excluded)
-    mesh_colors: MeshColors | None = field(default=None, compare=False)
-    """Colours from an imported mesh's visuals (replace the textures when set)."""
-    splats: SurfaceGaussians | None = field(default=None, compare=False)
-    """Captured splats (local frame, m) rendered instead of sampled surface Gaussians when set."""
-    normals_from_mesh: bool = False
-    """Surface Gaussians take the mesh's normals instead of the SDF gradient (imported meshes)."""
-    source: dict[str, str] | None = field(default=None, compare=False)
-    """User assets: provenance (``{"file": file name, "sha256": digest}``); None for library objects."""
-    keep_scale: bool = False
-    """User assets at their given scale: scenario sampling keeps their size instead of drawing one."""
-
-    def __post_init__(self) -> None:
-        semantic_id(self.category)
-        get_material(self.default_material)
-        for m in self.allowed_materials:
-            get_material(m)
-        if self.default_material not in self.allowed_materials:
-            raise ValueError(
-                f"object {self.name!r}: default_material {self.default_material!r} "
-                f"must be one of allowed_materials {self.allowed_materials}"
-            )
-        missing = [p for p in self.shape.part_ids() if not 0 <= p < len(self.textures)]
-        if missing:
-            raise ValueError(
-                f"object {self.name!r}: part ids {missing} have no texture (have {len(self.textures)})"
-            )
-        if not self.min_feature_m > 0.0:
-            raise ValueError(f"object {self.name!r}: min_feature_m must be > 0 m, got {self.min_feature_m}")
-
-    @property
-    def semantic_id(self) -> int:
-        return semantic_id(self.category)
-
-    @property
-    def size_m(self) -> NDArray[np.float64]:
-        """(3,) bounding-box size along x, y, z, m."""
-        return self.shape.extent_m()
-
-    @property
-    def nominal_size_m(self) -> float:
-        """Largest bounding-box extent, m."""
-        return float(self.size_m.max())
-
-    def scaled_to(self, size_m: float) -> ObjectAsset:
-        """The same object scaled uniformly so that its largest extent is ``size_m``."""
-        if not (np.isfinite(size_m) and MIN_SIZE_M <= size_m <= MAX_SIZE_M):
-            raise ValueError(
-                f"object {self.name!r}: size_m must be in [{MIN_SIZE_M}, {MAX_SIZE_M}] m, got {size_m}"
-            )
-        s = float(size_m) / self.nominal_size_m
-        textures = tuple(replace(t, period_m=t.period_m * s) for t in self.textures)
-        # one Scaled over the canonical shape, so every size reuses the canonical mesh (meshing.py)
-        if isinstance(self.shape, Scaled):
-            shape = Scaled(self.shape.child, self.shape.scale * s)
-        else:
-            shape = Scaled(self.shape, s)
-        return replace(
-            self,
-            shape=shape,
-            textures=textures,
-            min_feature_m=self.min_feature_m * s,
-            mesh_colors=None if self.mesh_colors is None else self.mesh_colors.scaled(s),
-            splats=None if self.splats is None else _scaled_splats(self.splats, s),
-        )
-
-    def with_material_color(self, material: str, rng: np.random.Generator) -> ObjectAsset:
-        """Recolour part 0's base colour from ``material``'s palette (other parts unchanged).
-
-        Imported assets with their own colours (mesh colours or splats) keep them; the
-        generator still advances by the same draws so downstream draws do not depend on it.
-        """
-        if material not in self.allowed_materials:
-            raise ValueError(
-                f"object {self.name!r}: material {material!r} not in allowed {self.allowed_materials}"
-            )
-        if self.mesh_colors is not None or self.splats is not None:
-            sample_palette_color(material, rng)
-            return self
-        t0 = self.textures[0]
-        colors = (sample_palette_color(material, rng),) + tuple(t0.colors[1:])
-        return replace(self, textures=(replace(t0, colors=colors),) + self.textures[1:])
-
-    def mesh_spacing_m(self) -> float:
-        """Default meshing grid spacing: a quarter of the thinnest feature, between extent/200 and extent/64."""
-        longest = self.nominal_size_m
-        return float(np.clip(self.min_feature_m / 4.0, longest / 200.0, longest / 64.0))
-
-    def to_mesh(self, spacing_m: float | None = None) -> trimesh.Trimesh:
-        """The visible surface (a fresh copy), m: watertight for library objects; the outer wall only for
-        shells; an imported mesh as loaded (possibly open)."""
-        return surface_mesh(self.shape, spacing_m or self.mesh_spacing_m()).copy()
-
-    def volume_m3(self) -> float:
-        """Volume of the material, m^3 (the wall only for hollow objects; mass = density x this)."""
-        return solid_volume_m3(self.shape, self.mesh_spacing_m())
-
-    @property
-    def is_hollow(self) -> bool:
-        """True for closed shells (the shape, maybe scaled, is a ``Shell``)."""
-        inner = self.shape.child if isinstance(self.shape, Scaled) else self.shape
-        return isinstance(inner, Shell)
-
-    def colors_at(self, points_m: ArrayLike, part_ids: ArrayLike | None = None) -> NDArray[np.float64]:
-        """RGB (n, 3) in [0, 1] at local surface points (n, 3), m; part ids from the SDF when not given."""
-        p = np.asarray(points_m, np.float64).reshape(-1, 3)
-        if self.mesh_colors is not None:
-            return self.mesh_colors.colors_at(p)
-        parts = self.shape.sdf_and_part(p)[1] if part_ids is None else np.asarray(part_ids)
-        out = np.zeros((len(p), 3))
-        for k, tex in enumerate(self.textures):  # loop over parts, vectorised over points
-            sel = parts == k
-            if np.any(sel):
-                out[sel] = tex.colors_at(p[sel])
-        return out
-
-    def interior_points(
-        self, spacing_m: float, rng: np.random.Generator, jitter: float = 0.5
-    ) -> NDArray[np.float64]:
-        """Points (n, 3) strictly inside the solid on a grid of ``spacing_m`` jittered by ``jitter`` x spacing."""
-        if not spacing_m > 0.0:
-            raise ValueError(f"interior_points: spacing_m must be > 0 m, got {spacing_m}")
-        if not 0.0 <= jitter <= 0.5:
-            raise ValueError(f"interior_points: jitter must be in [0, 0.5], got {jitter}")
-        lo, hi = self.shape.bounds()
-        dims = np.floor((hi - lo) / spacing_m).astype(np.int64) + 1
-        if np.prod(dims) > 8_000_000:
-            raise ValueError(
-                f"interior_points: spacing_m={spacing_m} gives {dims.tolist()} grid points (> 8e6)"
-            )
-        offset = lo + 0.5 * ((hi - lo) - (dims - 1) * spacing_m)
-        axes = [offset[i] + spacing_m * np.arange(dims[i]) for i in range(3)]
-        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-        grid = grid + rng.uniform(-jitter, jitter, grid.shape) * spacing_m
-        return grid[self.shape.sdf(grid) < 0.0]
-
-
-def _scaled_splats(splats: SurfaceGaussians, scale: float) -> SurfaceGaussians:
-    """Splats scaled uniformly about the origin (means and std-devs x scale)."""
-    return type(splats)(
-        splats.means_m * scale,
-        splats.scales_m * scale,
-        splats.rotations_wxyz,
-        splats.colors_rgb,
-        splats.opacities,
-        splats.part_ids,
-    )
+from newtphys.rotations import axis_angle_to_quat
 
 
 # --------------------------------------------------------------------------- #
@@ -257,12 +49,10 @@ def _solid(rgb: RGB) -> ProceduralTexture:
     return ProceduralTexture("solid", (rgb,))
 
 
-def _rot(axis: tuple[float, float, float], deg: float) -> tuple[float, float, float, float]:
-    return axis_angle_wxyz(axis, np.deg2rad(deg))
-
-
-_ALONG_X = _rot((0.0, 1.0, 0.0), 90.0)  # maps local z to world x
-_ALONG_Y = _rot((1.0, 0.0, 0.0), 90.0)  # maps local z to world -y (axial shapes are symmetric)
+X_AXIS, Y_AXIS = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)
+_ALONG_X = axis_angle_to_quat(Y_AXIS, np.deg2rad(90.0))  # maps local z to world x
+# maps local z to world -y (axial shapes are symmetric)
+_ALONG_Y = axis_angle_to_quat(X_AXIS, np.deg2rad(90.0))
 
 
 def _centred(shape: Shape) -> Shape:
@@ -277,7 +67,7 @@ def _frustum(z0: float, z1: float, r0: float, r1: float, part_id: int = 0) -> Sh
     wide_z = z0 if r0 > r1 else z1
     apex_up = r0 > r1
     cone_center_z = wide_z + (height / 2 if apex_up else -height / 2)
-    rot = (1.0, 0.0, 0.0, 0.0) if apex_up else _rot((1.0, 0.0, 0.0), 180.0)
+    rot = (1.0, 0.0, 0.0, 0.0) if apex_up else axis_angle_to_quat(X_AXIS, np.deg2rad(180.0))
     cone = place(Cone(max(r0, r1), height, part_id), (0.0, 0.0, cone_center_z), rot)
     slab = place(
         Box((max(r0, r1) * 1.5, max(r0, r1) * 1.5, (z1 - z0) / 2), part_id), (0.0, 0.0, (z0 + z1) / 2)
@@ -313,7 +103,7 @@ def _rugby_ball() -> Shape:
 
 def _mug() -> Shape:
     body = Cylinder(0.04, 0.05)
-    handle = place(Torus(0.025, 0.006), (0.045, 0.0, 0.0), _rot((1.0, 0.0, 0.0), 90.0))
+    handle = place(Torus(0.025, 0.006), (0.045, 0.0, 0.0), axis_angle_to_quat(X_AXIS, np.deg2rad(90.0)))
     cavity = place(Cylinder(0.034, 0.05, 1), (0.0, 0.0, 0.008))
     return Difference(Union((body, handle)), cavity)
 
@@ -365,7 +155,11 @@ def _rubber_duck() -> Shape:
             place(Ellipsoid((0.016, 0.012, 0.005), 1), (0.058, 0.0, 0.04)),
             place(Sphere(0.005, 2), (0.05, 0.012, 0.056)),
             place(Sphere(0.005, 2), (0.05, -0.012, 0.056)),
-            place(Ellipsoid((0.012, 0.008, 0.018)), (-0.048, 0.0, 0.022), _rot((0.0, 1.0, 0.0), -30.0)),
+            place(
+                Ellipsoid((0.012, 0.008, 0.018)),
+                (-0.048, 0.0, 0.022),
+                axis_angle_to_quat(Y_AXIS, np.deg2rad(-30.0)),
+            ),
         )
     )
 
@@ -379,7 +173,8 @@ def _teddy_bear() -> Shape:
     ]
     for y in (-1.0, 1.0):
         parts.append(place(Sphere(0.022), (0.0, 0.045 * y, 0.18)))
-        parts.append(place(Capsule(0.02, 0.03), (0.02, 0.07 * y, 0.03), _rot((1.0, 0.0, 0.0), 30.0 * y)))
+        tilt = axis_angle_to_quat(X_AXIS, np.deg2rad(30.0 * y))
+        parts.append(place(Capsule(0.02, 0.03), (0.02, 0.07 * y, 0.03), tilt))
         parts.append(place(Capsule(0.025, 0.025), (0.04, 0.04 * y, -0.075), _ALONG_X))
     return Union(tuple(parts))
 
@@ -464,7 +259,7 @@ def _bag() -> Shape:
     return Union(
         (
             RoundedBox((0.16, 0.06, 0.12), 0.03),
-            place(Torus(0.07, 0.008, 1), (0.0, 0.0, 0.12), _rot((1.0, 0.0, 0.0), 90.0)),
+            place(Torus(0.07, 0.008, 1), (0.0, 0.0, 0.12), axis_angle_to_quat(X_AXIS, np.deg2rad(90.0))),
         )
     )
 
@@ -526,7 +321,7 @@ def _toy_brick() -> Shape:
 def _spinning_top() -> Shape:
     return Union(
         (
-            place(Cone(0.03, 0.04), (0.0, 0.0, -0.02), _rot((1.0, 0.0, 0.0), 180.0)),
+            place(Cone(0.03, 0.04), (0.0, 0.0, -0.02), axis_angle_to_quat(X_AXIS, np.deg2rad(180.0))),
             place(Cylinder(0.03, 0.006), (0.0, 0.0, 0.004)),  # overlaps the cone: no touching faces
             place(Cylinder(0.005, 0.015, 1), (0.0, 0.0, 0.023)),
         )
@@ -843,28 +638,13 @@ def _build(name: str) -> ObjectAsset:
     )
 
 
-def list_objects() -> list[str]:
+def list_library_objects() -> list[str]:
     """Names of all library objects, sorted."""
     return sorted(_SPECS)
 
 
-def list_categories() -> list[str]:
-    """Semantic categories in id order (id = index + 1)."""
-    return list(CATEGORIES)
-
-
-def get_object(name: str, size_m: float | None = None) -> ObjectAsset:
-    """The library object ``name``, scaled so that its largest extent is ``size_m`` when given.
-
-    ``name`` may also be ``"file:<mesh path>?<options>"`` or ``"ply:<splat path>?<options>"``
-    (see ``data_gen.assets.imported`` for the options).
-    """
-    if name.startswith(("file:", "ply:")):
-        from data_gen.assets.imported import imported_object  # lazy: imported.py builds on this module
-
-        asset = imported_object(name)
-        return asset if size_m is None else asset.scaled_to(size_m)
+def library_object(name: str) -> ObjectAsset:
+    """The library object ``name`` at its canonical size; an unknown name lists the valid ones."""
     if name not in _SPECS:
-        raise KeyError(f"unknown object {name!r}; valid objects: {', '.join(list_objects())}")
-    asset = _build(name)
-    return asset if size_m is None else asset.scaled_to(size_m)
+        raise KeyError(f"unknown object {name!r}; valid objects: {', '.join(list_library_objects())}")
+    return _build(name)

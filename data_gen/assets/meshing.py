@@ -36,7 +36,7 @@ import trimesh
 
 from data_gen.assets import shapes as _shapes_module
 from data_gen.assets.shapes import Scaled, Shape, Shell, Transformed, mesh_sdf
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 MESH_CACHE_SIZE = 256  # canonical meshes kept in memory (34 library objects x a few spacings)
 

@@ -1,6 +1,7 @@
 """3D Gaussian splat .ply files (INRIA layout) and triangle-mesh import.
 
-Splat .ply layout (binary little endian, one ``vertex`` element, float32):
+Splat .ply layout (one ``vertex`` element, float32; written binary little endian, read in any PLY
+encoding and scalar type, ``data_gen.assets.ply_format``):
 ``x y z``, ``nx ny nz``, ``f_dc_0..2``, ``f_rest_0..(3K-1)`` (channel-major:
 all K coefficients of red, then green, then blue; K = (d + 1)^2 - 1 for SH
 degree d, so 0, 9, 24 or 45 values), ``opacity`` (logit), ``scale_0..2``
@@ -8,11 +9,12 @@ degree d, so 0, 9, 24 or 45 values), ``opacity`` (logit), ``scale_0..2``
 Colour = 0.5 + C0 * f_dc with C0 = 0.28209479177387814 (the degree-0 SH constant).
 
 ``read_splat_ply`` / ``write_splat_ply`` move the raw encoded fields
-(``SplatPly``) bit-exactly. ``import_splats`` decodes to ``SurfaceGaussians``
+(``SplatPly``) bit-exactly. ``import_splats`` decodes to ``Gaussians``
 with a metric scale factor and an up-axis conversion to Z-up (positions,
 orientations and view-dependent SH rotate together); ``export_splats`` encodes
-any ``SurfaceGaussians``. Meshes (OBJ/PLY/GLB/STL/OFF) come in through
-``import_mesh`` with the same options and a watertightness check; inside tests
+any ``Gaussians``. Meshes (OBJ/PLY/GLB/STL/OFF) come in through
+``import_mesh`` with the same options and a watertightness check (PLY meshes in
+any encoding through ``read_ply_mesh``, the rest through trimesh); inside tests
 on any mesh use the generalised winding number (``points_inside_mesh``, warp).
 """
 
@@ -22,36 +24,21 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from data_gen.assets.gaussians_from_geometry import FloatArray, SurfaceGaussians, quat_multiply
-from newtphys.geometry import matrix_to_quat
+from data_gen.assets.ply_format import PlyFormatError, PlyList, read_ply, write_ply
+from data_gen.gaussians import Gaussians
+from newtphys.rotations import matrix_to_quat, quat_multiply, rotation_between
 
 SH_C0 = 0.28209479177387814
 OPACITY_EPS = 1e-6  # opacities are clipped to [eps, 1 - eps] before the logit
 UP_AXES = ("z", "y", "-y", "x", "-x", "-z")
-_PLY_TYPES = {
-    "float": "<f4",
-    "float32": "<f4",
-    "double": "<f8",
-    "float64": "<f8",
-    "uchar": "u1",
-    "uint8": "u1",
-    "char": "i1",
-    "int8": "i1",
-    "ushort": "<u2",
-    "uint16": "<u2",
-    "short": "<i2",
-    "int16": "<i2",
-    "uint": "<u4",
-    "uint32": "<u4",
-    "int": "<i4",
-    "int32": "<i4",
-}
+FloatArray = NDArray[np.floating[Any]]  # stored as float32 after validation
 _REQUIRED = (
     "x",
     "y",
@@ -69,10 +56,6 @@ _REQUIRED = (
     "rot_3",
 )
 _REST_COUNTS = {0: 0, 9: 1, 24: 2, 45: 3}  # number of f_rest values -> SH degree
-
-
-class PlyFormatError(ValueError):
-    """A .ply file is malformed or lacks what the INRIA splat layout needs."""
 
 
 @dataclass
@@ -120,8 +103,16 @@ class SplatPly:
 # --------------------------------------------------------------------------- #
 # Encoding
 # --------------------------------------------------------------------------- #
-def encode_gaussians(g: SurfaceGaussians, f_rest: ArrayLike | None = None) -> SplatPly:
-    """SurfaceGaussians -> raw INRIA fields (f_dc from colour, logit opacity, log scales)."""
+def encode_gaussians(g: Gaussians, f_rest: ArrayLike | None = None) -> SplatPly:
+    """Gaussians -> raw INRIA fields (f_dc from colour, logit opacity, log scales)."""
+    if g.scales_m is None or g.rotations_wxyz is None:
+        raise ValueError(
+            "encode_gaussians: the INRIA layout needs Gaussians given by scales_m + rotations_wxyz"
+        )
+    if n_flat := int((g.scales_m <= 0.0).any(axis=1).sum()):
+        raise ValueError(
+            f"encode_gaussians: scales_m must be > 0 m (the file stores their log); {n_flat} rows are not"
+        )
     n = len(g)
     rest = np.zeros((n, 3, 0), np.float32) if f_rest is None else np.asarray(f_rest, np.float32)
     op = np.clip(g.opacities.astype(np.float64), OPACITY_EPS, 1.0 - OPACITY_EPS)
@@ -136,8 +127,8 @@ def encode_gaussians(g: SurfaceGaussians, f_rest: ArrayLike | None = None) -> Sp
     )
 
 
-def decode_splats(ply: SplatPly) -> SurfaceGaussians:
-    """Raw INRIA fields -> SurfaceGaussians (colour clipped to [0, 1], rotations normalised); f_rest dropped."""
+def decode_splats(ply: SplatPly) -> Gaussians:
+    """Raw INRIA fields -> Gaussians (colour clipped to [0, 1], rotations normalised); f_rest dropped."""
     q = ply.rotations_wxyz.astype(np.float64)
     norm = np.linalg.norm(q, axis=1, keepdims=True)
     if len(q) and norm.min() < 1e-12:
@@ -145,18 +136,17 @@ def decode_splats(ply: SplatPly) -> SurfaceGaussians:
     colors = np.clip(0.5 + SH_C0 * ply.f_dc.astype(np.float64), 0.0, 1.0)
     opac = 1.0 / (1.0 + np.exp(-ply.opacity_logit.astype(np.float64)))
     opac = np.clip(opac, np.finfo(np.float32).tiny, 1.0)
-    return SurfaceGaussians(
-        ply.positions,
-        np.exp(ply.log_scales.astype(np.float64)),
-        q / norm,
-        colors,
-        opac,
-        np.zeros(len(ply), np.int32),
+    return Gaussians(
+        means_m=ply.positions,
+        scales_m=np.exp(ply.log_scales.astype(np.float64)),
+        rotations_wxyz=q / norm,
+        colors_rgb=colors,
+        opacities=opac,
     )
 
 
 # --------------------------------------------------------------------------- #
-# Binary I/O
+# File I/O (any PLY encoding)
 # --------------------------------------------------------------------------- #
 def _property_names(k_rest: int) -> list[str]:
     return (
@@ -166,97 +156,47 @@ def _property_names(k_rest: int) -> list[str]:
     )
 
 
-def write_splat_ply(path: str | os.PathLike[str], ply: SplatPly) -> None:
-    """Write raw fields as a binary little-endian INRIA .ply (float32 properties), atomically."""
+def write_splat_ply(
+    path: str | os.PathLike[str], ply: SplatPly, encoding: str = "binary_little_endian"
+) -> None:
+    """Write raw fields as an INRIA .ply (float32 properties, one ``vertex`` element), atomically.
+
+    ``encoding`` is any PLY encoding (``ply_format.ENCODINGS``); 3DGS tools expect the default.
+    """
     k = ply.f_rest.shape[2]
-    names = _property_names(k)
-    data = np.empty(len(ply), dtype=np.dtype([(name, "<f4") for name in names]))
+    columns: dict[str, NDArray[np.float32]] = {}
     for i, axis in enumerate("xyz"):
-        data[axis] = ply.positions[:, i]
-        data["n" + axis] = ply.normals[:, i]
+        columns[axis] = ply.positions[:, i]
+    for i, axis in enumerate("xyz"):
+        columns["n" + axis] = ply.normals[:, i]
     for c in range(3):
-        data[f"f_dc_{c}"] = ply.f_dc[:, c]
-        data[f"scale_{c}"] = ply.log_scales[:, c]
+        columns[f"f_dc_{c}"] = ply.f_dc[:, c]
+    for c in range(3):
         for j in range(k):  # channel-major: index = c * K + j
-            data[f"f_rest_{c * k + j}"] = ply.f_rest[:, c, j]
-    data["opacity"] = ply.opacity_logit
+            columns[f"f_rest_{c * k + j}"] = ply.f_rest[:, c, j]
+    columns["opacity"] = ply.opacity_logit
+    for c in range(3):
+        columns[f"scale_{c}"] = ply.log_scales[:, c]
     for c in range(4):
-        data[f"rot_{c}"] = ply.rotations_wxyz[:, c]
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(ply)}"]
-    header += [f"property float {name}" for name in names] + ["end_header"]
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
-        f.write(data.tobytes())
-    os.replace(tmp, path)
-
-
-def _parse_header(path: Path, raw: bytes) -> tuple[int, int, np.dtype]:
-    """Return (data offset in bytes, vertex count, vertex dtype); raise PlyFormatError naming the problem."""
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise PlyFormatError(f"{path}: not a .ply file (missing 'ply' magic or 'end_header')")
-    nl = raw.find(b"\n", end)
-    if nl < 0:
-        raise PlyFormatError(f"{path}: header ends without a newline after 'end_header'")
-    lines = raw[:end].decode("ascii", errors="replace").splitlines()[1:]
-    fmt, count, props, element = None, None, [], None
-    for line in lines:
-        tok = line.split()
-        if not tok or tok[0] in ("comment", "obj_info"):
-            continue
-        if tok[0] == "format":
-            fmt = " ".join(tok[1:])
-        elif tok[0] == "element":
-            if element == "vertex":
-                break  # later elements follow the vertex data; they are not read
-            if len(tok) != 3 or not tok[2].isdigit():
-                raise PlyFormatError(f"{path}: malformed element line {line!r}")
-            element = tok[1]
-            if element != "vertex":
-                raise PlyFormatError(
-                    f"{path}: element {tok[1]!r} precedes 'vertex'; the splat layout has 'vertex' first"
-                )
-            count = int(tok[2])
-        elif tok[0] == "property":
-            if element is None:
-                raise PlyFormatError(f"{path}: property {line!r} before any element")
-            if tok[1] == "list":
-                raise PlyFormatError(
-                    f"{path}: list property {tok[-1]!r} in 'vertex' is not supported for splats"
-                )
-            if len(tok) != 3 or tok[1] not in _PLY_TYPES:
-                raise PlyFormatError(f"{path}: unsupported property line {line!r}")
-            props.append((tok[2], _PLY_TYPES[tok[1]]))
-    if fmt != "binary_little_endian 1.0":
-        raise PlyFormatError(f"{path}: format {fmt!r} not supported; need 'binary_little_endian 1.0'")
-    if count is None:
-        raise PlyFormatError(f"{path}: no 'vertex' element")
-    names = [p[0] for p in props]
-    if len(set(names)) != len(names):
-        raise PlyFormatError(f"{path}: duplicate vertex properties in {names}")
-    missing = [name for name in _REQUIRED if name not in names]
-    if missing:
-        raise PlyFormatError(f"{path}: missing required vertex properties {missing}")
-    return nl + 1, count, np.dtype(props)
+        columns[f"rot_{c}"] = ply.rotations_wxyz[:, c]
+    assert list(columns) == _property_names(k)
+    write_ply(path, {"vertex": columns}, encoding)
 
 
 def read_splat_ply(path: str | os.PathLike[str]) -> SplatPly:
-    """Read an INRIA splat .ply into raw fields; errors name the file and the offending property."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"splat .ply not found: {path}")
-    raw = path.read_bytes()
-    offset, count, dtype = _parse_header(path, raw)
-    need = count * dtype.itemsize
-    if len(raw) - offset < need:
-        raise PlyFormatError(
-            f"{path}: truncated: header declares {count} vertices ({need} bytes) but "
-            f"{len(raw) - offset} bytes follow the header"
-        )
-    data = np.frombuffer(raw, dtype=dtype, count=count, offset=offset)
-    names: tuple[str, ...] = dtype.names or ()
+    """Read an INRIA splat .ply (any encoding, any scalar property types) into raw float32 fields; errors
+    name the file and the offending property."""
+    data = read_ply(path)
+    path = data.path
+    vertex = data.element("vertex")
+    lists = [name for name, col in vertex.items() if isinstance(col, PlyList)]
+    if lists:
+        raise PlyFormatError(f"{path}: list property {lists[0]!r} in 'vertex' is not supported for splats")
+    missing = [name for name in _REQUIRED if name not in vertex]
+    if missing:
+        raise PlyFormatError(f"{path}: missing required vertex properties {missing}")
+    names = tuple(vertex)
+    count = len(vertex["x"])
     rest_names = sorted(
         (n for n in names if n.startswith("f_rest_")),
         key=lambda s: int(s[7:]) if s[7:].isdigit() else 1 << 30,
@@ -266,28 +206,26 @@ def read_splat_ply(path: str | os.PathLike[str]) -> SplatPly:
             f"{path}: f_rest properties must be f_rest_0..f_rest_(3K-1) with 3K in (0, 9, 24, 45), "
             f"got {len(rest_names)}"
         )
-    for name in _REQUIRED + tuple(rest_names):
-        col = data[name]
-        if col.dtype.kind == "f" and not np.all(np.isfinite(col)):
-            bad = int(np.flatnonzero(~np.isfinite(col))[0])
-            raise PlyFormatError(f"{path}: property {name!r} holds NaN/inf (first at vertex {bad})")
 
     def cols(names: list[str]) -> NDArray[np.float32]:
-        return (
-            np.stack([data[n].astype(np.float32) for n in names], axis=1)
-            if names
-            else np.zeros((count, 0), np.float32)
-        )
+        if not names:
+            return np.zeros((count, 0), np.float32)
+        for name in names:
+            col = vertex[name]
+            assert not isinstance(col, PlyList)
+            if col.dtype.kind == "f" and not np.all(np.isfinite(col)):
+                bad = int(np.flatnonzero(~np.isfinite(col))[0])
+                raise PlyFormatError(f"{path}: property {name!r} holds NaN/inf (first at vertex {bad})")
+        return np.stack([np.asarray(vertex[n]).astype(np.float32) for n in names], axis=1)
 
     has_normals = all(n in names for n in ("nx", "ny", "nz"))
     k = len(rest_names) // 3
-    rest = cols(rest_names).reshape(count, 3, k)
     return SplatPly(
         positions=cols(["x", "y", "z"]),
         normals=cols(["nx", "ny", "nz"]) if has_normals else np.zeros((count, 3), np.float32),
         f_dc=cols(["f_dc_0", "f_dc_1", "f_dc_2"]),
-        f_rest=rest,
-        opacity_logit=data["opacity"].astype(np.float32),
+        f_rest=cols(rest_names).reshape(count, 3, k),
+        opacity_logit=cols(["opacity"])[:, 0],
         log_scales=cols(["scale_0", "scale_1", "scale_2"]),
         rotations_wxyz=cols(["rot_0", "rot_1", "rot_2", "rot_3"]),
     )
@@ -297,18 +235,12 @@ def read_splat_ply(path: str | os.PathLike[str]) -> SplatPly:
 # Frame conversion: metric scale + up axis -> Z-up
 # --------------------------------------------------------------------------- #
 def up_axis_rotation(up_axis: str) -> NDArray[np.float64]:
-    """Proper rotation (3, 3) taking the file's ``up_axis`` to +z (e.g. "y": (x, y, z) -> (x, -z, y))."""
-    table = {
-        "z": np.eye(3),
-        "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),  # +90 deg about x
-        "-y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]),  # -90 deg about x
-        "x": np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),  # -90 deg about y
-        "-x": np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]),  # +90 deg about y
-        "-z": np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]),  # 180 deg about x
-    }
-    if up_axis not in table:
+    """Proper rotation (3, 3) taking the file's ``up_axis`` to +z: the smallest such rotation, 180 deg about x
+    for "-z" (e.g. "y" is +90 deg about x: (x, y, z) -> (x, -z, y)); entries are exactly 0 and +-1."""
+    if up_axis not in UP_AXES:
         raise ValueError(f"up_axis must be one of {UP_AXES}, got {up_axis!r}")
-    return table[up_axis]
+    sign = -1.0 if up_axis.startswith("-") else 1.0
+    return rotation_between(sign * np.eye(3)["xyz".index(up_axis[-1])], (0.0, 0.0, 1.0))
 
 
 def _check_scale(scale: float, path: object) -> float:
@@ -390,21 +322,140 @@ def import_splats(
     scale: float = 1.0,
     up_axis: str = "z",
     translation_m: ArrayLike = (0.0, 0.0, 0.0),
-) -> tuple[SurfaceGaussians, SplatPly]:
+) -> tuple[Gaussians, SplatPly]:
     """Read a splat .ply into world Gaussians (Z-up, metres) and the transformed raw fields (with SH)."""
     _check_scale(scale, path)
     raw = transform_splats(read_splat_ply(path), scale, up_axis, translation_m)
     return decode_splats(raw), raw
 
 
-def export_splats(path: str | os.PathLike[str], gaussians: SurfaceGaussians) -> None:
-    """Write any SurfaceGaussians as an INRIA splat .ply (SH degree 0)."""
+def export_splats(path: str | os.PathLike[str], gaussians: Gaussians) -> None:
+    """Write any Gaussians as an INRIA splat .ply (SH degree 0)."""
     write_splat_ply(path, encode_gaussians(gaussians))
 
 
 # --------------------------------------------------------------------------- #
 # Meshes
 # --------------------------------------------------------------------------- #
+FACE_INDEX_NAMES = ("vertex_indices", "vertex_index")  # what exporters call a face's vertex list
+VERTEX_UV_NAMES = (("texture_u", "texture_v"), ("u", "v"), ("s", "t"))
+COLOR_NAMES = ("red", "green", "blue", "alpha")
+
+
+def triangulate_polygons(polygons: PlyList) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Triangles (m, 3) of polygons given as vertex-index lists, and the polygon each comes from (m,).
+
+    Order (trimesh's, so a PLY mesh reads the same either way): the triangles as they are, then every
+    quad's (0, 1, 2) halves followed by every quad's (2, 3, 0) halves, then larger polygons as fans
+    (0, j, j + 1) polygon by polygon.  Vectorised over polygons.
+    """
+    counts, starts = polygons.counts, polygons.offsets[:-1]
+    values = np.asarray(polygons.values, np.int64)
+    tri = np.flatnonzero(counts == 3)
+    quad = np.flatnonzero(counts == 4)
+    fan = np.flatnonzero(counts > 4)
+    fans_per = counts[fan] - 2
+    fan_poly = np.repeat(fan, fans_per)
+    j = np.arange(len(fan_poly)) - np.repeat(np.cumsum(fans_per) - fans_per, fans_per) + 1
+    corners = [
+        starts[tri, None] + np.arange(3),
+        starts[quad, None] + np.array([0, 1, 2]),
+        starts[quad, None] + np.array([2, 3, 0]),
+        np.stack([starts[fan_poly], starts[fan_poly] + j, starts[fan_poly] + j + 1], axis=1),
+    ]
+    faces = values[np.concatenate([c.reshape(-1, 3) for c in corners])]
+    return faces, np.concatenate([tri, quad, quad, fan_poly])
+
+
+def _columns(
+    element: dict[str, NDArray[np.generic] | PlyList], names: tuple[str, ...]
+) -> NDArray[np.generic] | None:
+    """The scalar columns ``names`` side by side (n, len(names)), or None unless all are there."""
+    cols = [element[n] for n in names if n in element and not isinstance(element[n], PlyList)]
+    return np.column_stack(cols) if len(cols) == len(names) else None
+
+
+def _texture_image(path: Path, comments: tuple[str, ...]):
+    """The image named by a ``comment TextureFile <name>`` line (relative to the file), or None."""
+    names = [c.split(maxsplit=1)[1] for c in comments if c.startswith("TextureFile") and len(c.split()) > 1]
+    if not names:
+        return None
+    import PIL.Image  # soft dependency, as for trimesh's textures
+
+    image_path = path.parent / names[0]
+    if not image_path.is_file():
+        warnings.warn(
+            f"{path}: texture image {names[0]!r} not found next to the file; ignoring it", stacklevel=3
+        )
+        return None
+    return PIL.Image.open(image_path)
+
+
+def read_ply_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
+    """A triangle mesh from a .ply file in any encoding (``process=True``, as ``trimesh.load`` builds it).
+
+    Reads vertex ``x y z`` (and ``nx ny nz``), the ``face`` element's vertex-index list (``vertex_indices``
+    or ``vertex_index``; polygons triangulated by :func:`triangulate_polygons`), vertex and face colours
+    (``red green blue [alpha]``) and texture coordinates (per vertex ``texture_u/v``, ``u/v`` or ``s/t``,
+    or a face ``texcoord`` list) with the image of a ``comment TextureFile <name>`` line.
+    """
+    data = read_ply(path)
+    path = data.path
+    vertex = data.element("vertex")
+    xyz = _columns(vertex, ("x", "y", "z"))
+    if xyz is None:
+        raise PlyFormatError(f"{path}: the 'vertex' element needs scalar properties x, y and z")
+    vertices = xyz.astype(np.float64)
+    face = data.elements.get("face", {})
+    lists = [n for n, col in face.items() if isinstance(col, PlyList) and n != "texcoord"]
+    name = next((n for n in FACE_INDEX_NAMES if n in lists), lists[0] if len(lists) == 1 else None)
+    if name is None or len(face[name]) == 0:
+        raise ValueError(
+            f"{path}: no triangles found (no 'face' element with a {' or '.join(FACE_INDEX_NAMES)} list)"
+        )
+    polygons = face[name]
+    assert isinstance(polygons, PlyList)
+    if np.any(polygons.counts < 3):
+        i = int(np.flatnonzero(polygons.counts < 3)[0])
+        raise PlyFormatError(f"{path}: face {i} has {polygons.counts[i]} vertices; a face needs at least 3")
+    bad = (polygons.values < 0) | (polygons.values >= len(vertices))
+    if np.any(bad):
+        row = int(np.searchsorted(polygons.offsets, np.flatnonzero(bad)[0], side="right") - 1)
+        raise PlyFormatError(
+            f"{path}: face {row} refers to vertex {int(polygons.values[np.flatnonzero(bad)[0]])}; "
+            f"the file has vertices 0..{len(vertices) - 1}"
+        )
+    faces, source = triangulate_polygons(polygons)
+    kwargs: dict[str, object] = {}
+    normals = _columns(vertex, ("nx", "ny", "nz"))
+    if normals is not None:
+        kwargs["vertex_normals"] = normals
+    vertex_colors = _columns(vertex, COLOR_NAMES) if "alpha" in vertex else _columns(vertex, COLOR_NAMES[:3])
+    face_colors = _columns(face, COLOR_NAMES) if "alpha" in face else _columns(face, COLOR_NAMES[:3])
+    if vertex_colors is not None:
+        kwargs["vertex_colors"] = vertex_colors
+    if face_colors is not None:
+        kwargs["face_colors"] = face_colors[source]
+    texcoord = face.get("texcoord")
+    if isinstance(texcoord, PlyList) and np.all(texcoord.counts == 2 * polygons.counts):
+        corner_uv = np.asarray(texcoord.values, np.float64).reshape(-1, 2)  # one (u, v) per polygon corner
+        uv_of_corner, _ = triangulate_polygons(PlyList(polygons.counts, np.arange(len(corner_uv))))
+        uv_faces = corner_uv[uv_of_corner]
+    else:
+        uv_names = next((n for n in VERTEX_UV_NAMES if _columns(vertex, n) is not None), None)
+        uv_faces = None if uv_names is None else _columns(vertex, uv_names).astype(np.float64)[faces]
+    if uv_faces is not None:  # vertices with one position but several uv are split (what trimesh does)
+        unique, inverse = trimesh.grouping.unique_rows(uv_faces.reshape(-1, 2))
+        faces, mask_v, mask_vt = trimesh.visual.texture.unmerge_faces(faces, inverse.reshape(faces.shape))
+        vertices = vertices[mask_v]
+        kwargs = {k: (v[mask_v] if k in ("vertex_normals", "vertex_colors") else v) for k, v in kwargs.items()}
+        uv = uv_faces.reshape(-1, 2)[unique][mask_vt]
+        kwargs["visual"] = trimesh.visual.texture.TextureVisuals(
+            uv=uv, image=_texture_image(path, data.header.comments)
+        )
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=True, **kwargs)
+
+
 @dataclass
 class ImportedMesh:
     """A mesh in world units (m, Z-up) and whether it is watertight (else use the winding number)."""
@@ -424,7 +475,8 @@ def import_mesh(
     up_axis: str = "z",
     translation_m: ArrayLike = (0.0, 0.0, 0.0),
 ) -> ImportedMesh:
-    """Load OBJ/PLY/GLB/STL/OFF via trimesh (scenes are concatenated), scale to m, rotate ``up_axis`` to +z.
+    """Load PLY (``read_ply_mesh``, any encoding) or OBJ/GLB/STL/OFF (trimesh; scenes are concatenated),
+    scale to m, rotate ``up_axis`` to +z.
 
     Holes are filled where trimesh can; a mesh that stays open is returned with
     ``watertight=False`` and a warning (inside tests then use the winding number).
@@ -434,10 +486,13 @@ def import_mesh(
         raise FileNotFoundError(f"mesh file not found: {path}")
     s = _check_scale(scale, path)
     r = up_axis_rotation(up_axis)
-    try:
-        mesh = trimesh.load(path, force="mesh")
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise ValueError(f"{path}: could not read mesh: {exc}") from exc
+    if path.suffix.lower() == ".ply":
+        mesh = read_ply_mesh(path)
+    else:
+        try:
+            mesh = trimesh.load(path, force="mesh")
+        except Exception as exc:  # trimesh raises many types for unreadable files
+            raise ValueError(f"{path}: could not read mesh: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"{path}: no triangles found")
     if not np.all(np.isfinite(mesh.vertices)):

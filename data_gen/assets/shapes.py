@@ -35,7 +35,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 F64 = NDArray[np.float64]
 I32 = NDArray[np.int32]
@@ -336,17 +336,15 @@ class Transformed(Shape):
                 f"Transformed: translation_m must be 3 finite values in m, got {self.translation_m}"
             )
 
-    def _rotation(self) -> F64:
-        return quat_to_matrix(np.asarray(self.rotation_wxyz, np.float64))
-
     def _sdf_part(self, p: F64) -> tuple[F64, I32]:
-        local = (p - np.asarray(self.translation_m)) @ self._rotation()  # R^T (p - t), row-vector form
+        # R^T (p - t), row-vector form
+        local = (p - np.asarray(self.translation_m)) @ quat_to_matrix(self.rotation_wxyz)
         return self.child._sdf_part(local)
 
     def bounds(self) -> F64:
         b = self.child.bounds()
         corners = np.array(list(itertools.product(*zip(b[0], b[1]))))
-        world = corners @ self._rotation().T + np.asarray(self.translation_m)
+        world = corners @ quat_to_matrix(self.rotation_wxyz).T + np.asarray(self.translation_m)
         return np.stack([world.min(axis=0), world.max(axis=0)])
 
     def part_ids(self) -> tuple[int, ...]:
@@ -523,16 +521,6 @@ def place(
             f"place: translation_m needs 3 values and rotation_wxyz 4, got {len(t)} and {len(q)}"
         )
     return Transformed(child, (t[0], t[1], t[2]), (q[0], q[1], q[2], q[3]))
-
-
-def axis_angle_wxyz(axis: Sequence[float], angle_rad: float) -> tuple[float, float, float, float]:
-    """Unit quaternion (w, x, y, z) of a rotation by ``angle_rad`` about ``axis``."""
-    a = np.asarray(axis, np.float64)
-    n = np.linalg.norm(a)
-    if n < 1e-12:
-        raise ValueError(f"axis must be non-zero, got {list(axis)}")
-    a = a / n * np.sin(angle_rad / 2.0)
-    return (float(np.cos(angle_rad / 2.0)), float(a[0]), float(a[1]), float(a[2]))
 
 
 # --------------------------------------------------------------------------- #

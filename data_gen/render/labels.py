@@ -38,7 +38,7 @@ import torch
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 from data_gen.render.projection import (
     DEFAULT_DILATION_PX2,
     DEFAULT_NEAR_M,

@@ -45,7 +45,7 @@ import torch
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 
 #: Low-pass dilation added to the diagonal of every projected 2D covariance, px^2.
 DEFAULT_DILATION_PX2 = 0.3
@@ -412,7 +412,7 @@ class ProjectedSplats:
         use_cov = gaussians.covariances_m2 is not None
         cov = to_warp(gaussians.covariances_m2, wp.mat33, d) if use_cov else None
         scales = None if use_cov else to_warp(gaussians.scales_m, wp.vec3, d)
-        rots = None if use_cov else to_warp(gaussians.rotations_wxyz, wp.vec4, d)
+        rots = None if use_cov else to_warp(gaussians.unit_rotations_wxyz, wp.vec4, d)
         means = to_warp(gaussians.means_m, wp.vec3, d)
         opacities = to_warp(gaussians.opacities, float, d)
         parts = split_range(n, self.num_threads)

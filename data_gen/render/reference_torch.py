@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 from data_gen.render.labels import LABEL_COVER_ALPHA
 from data_gen.render.projection import (
     DEFAULT_DILATION_PX2,

@@ -14,6 +14,7 @@ import torch
 from data_gen.sim.contact_points import ContactPoints
 from data_gen.sim.reduced import DTYPE, ReducedObject, deform, q_to_z
 from data_gen.sim.skinning import SkinningBasis
+from newtphys.rotations import best_fit_rotation, matrix_to_quat
 
 
 @dataclass
@@ -165,8 +166,9 @@ class ContactEventTracker:
 
 
 @dataclass
-class SimulationInfo:
-    """Run summary (the world state's ``simulation`` entry)."""
+class SimulationRunSummary:
+    """What a simulation run did: settings, step counts, wall times (s) and solver counters; ``to_dict`` is
+    the world state's ``simulation`` entry (``newtphys.world_state.SimulationInfo``)."""
 
     quality: str
     dt_s: float
@@ -207,7 +209,7 @@ class SimulationResult:
     gravity_m_s2: np.ndarray
     objects: list[ObjectTrack]
     collisions: list[ContactEvent]
-    info: SimulationInfo
+    info: SimulationRunSummary
     energies_j: dict[str, np.ndarray]  # kinetic / elastic / contact / gravity, each (T,)
 
     @property
@@ -312,7 +314,7 @@ def _object_frame(
         "hydrostatic_stress_pa": stress,
         "det_f": torch.linalg.det(F).numpy(),
         "com_m": com.numpy(),
-        "orientation_wxyz": best_fit_rotation_wxyz(model.mass_points_rest, xp, mp),
+        "orientation_wxyz": matrix_to_quat(best_fit_rotation(model.mass_points_rest.numpy(), xp.numpy(), mp.numpy())),
         "velocity_m_s": vcom.numpy(),
         "angular_velocity_rad_s": angular_velocity(xp - com, vp - vcom, mp).numpy(),
         "asleep": np.bool_(asleep),
@@ -346,59 +348,6 @@ def rigid_mean_hydrostatic_pa(
     virial = float(((where - com_m) * sphere_f).sum())
     spin = float((particle_masses_kg * (particle_rel_velocity_m_s**2).sum(1)).sum())
     return (virial + spin) / (3.0 * volume_m3)
-
-
-def best_fit_rotation_wxyz(
-    points_rest: torch.Tensor, points: torch.Tensor, masses: torch.Tensor
-) -> np.ndarray:
-    """Rotation of the mass-weighted best-fit affine map rest -> current, by polar decomposition, as wxyz."""
-    w = masses / masses.sum()
-    c0 = (w[:, None] * points_rest).sum(0)
-    c = (w[:, None] * points).sum(0)
-    cross = (w[:, None] * (points - c)).T @ (points_rest - c0)
-    u, _, vt = torch.linalg.svd(cross)
-    d = torch.sign(torch.linalg.det(u @ vt))
-    rot = u @ torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=DTYPE)) @ vt
-    return matrix_to_quat_wxyz(rot.numpy())
-
-
-def matrix_to_quat_wxyz(rot: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) with w >= 0 of a rotation matrix (3,3)."""
-    k = (
-        np.array(
-            [
-                [
-                    rot[0, 0] - rot[1, 1] - rot[2, 2],
-                    rot[1, 0] + rot[0, 1],
-                    rot[2, 0] + rot[0, 2],
-                    rot[2, 1] - rot[1, 2],
-                ],
-                [
-                    rot[1, 0] + rot[0, 1],
-                    rot[1, 1] - rot[0, 0] - rot[2, 2],
-                    rot[2, 1] + rot[1, 2],
-                    rot[0, 2] - rot[2, 0],
-                ],
-                [
-                    rot[2, 0] + rot[0, 2],
-                    rot[2, 1] + rot[1, 2],
-                    rot[2, 2] - rot[0, 0] - rot[1, 1],
-                    rot[1, 0] - rot[0, 1],
-                ],
-                [
-                    rot[2, 1] - rot[1, 2],
-                    rot[0, 2] - rot[2, 0],
-                    rot[1, 0] - rot[0, 1],
-                    rot[0, 0] + rot[1, 1] + rot[2, 2],
-                ],
-            ]
-        )
-        / 3.0
-    )
-    vals, vecs = np.linalg.eigh(k)
-    x, y, z, w = vecs[:, np.argmax(vals)]
-    q = np.array([w, x, y, z])
-    return q if q[0] >= 0 else -q
 
 
 def angular_velocity(rel_pos: torch.Tensor, rel_vel: torch.Tensor, masses: torch.Tensor) -> torch.Tensor:

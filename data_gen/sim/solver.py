@@ -19,7 +19,7 @@ predicted motion plus a median contact radius; affine handles linearise rotation
 can otherwise be offered updates of metres), and when the preset's Armijo halvings fail the search keeps
 halving for any decrease before giving up at the last accepted iterate.
 
-Counters (``ImplicitEulerSolver.counters``, reported in ``SimulationInfo.counters``): island solves,
+Counters (``ImplicitEulerSolver.counters``, reported in ``SimulationRunSummary.counters``): island solves,
 ``unconverged_solves`` (stopped at ``newton_iterations`` above tolerance), ``line_search_failures``,
 ``line_search_extended``, ``trust_limited_steps``, ``strict_projections`` (indefinite Newton matrix:
 every elastic block projected), ``substep_cap_raised`` and energy evaluations.

@@ -20,24 +20,10 @@ import numpy as np
 import torch
 import warp as wp
 
+from newtphys.rotations import quat_to_matrix
+
 _FAR_M = 1.0e30  # distance reported when the scene is empty
 DEFAULT_POINT_SEARCH_M = 0.1  # hash-grid search radius of a static point cloud, m
-
-
-def quat_wxyz_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrix (3,3) of a unit quaternion (w, x, y, z); the quaternion is normalised."""
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    norm = float(np.linalg.norm(q))
-    if q.shape != (4,) or not norm > 0:
-        raise ValueError(f"rotation_wxyz={q_wxyz!r} must be a non-zero 4-vector (w, x, y, z)")
-    w, x, y, z = q / norm
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 @dataclass(frozen=True)
@@ -54,11 +40,18 @@ class StaticBox:
         he = np.asarray(self.half_extents_m, dtype=np.float64)
         if he.shape != (3,) or not np.all(he > 0) or not np.all(np.isfinite(he)):
             raise ValueError(f"StaticBox half_extents_m={self.half_extents_m!r} must be 3 finite numbers > 0")
-        quat_wxyz_to_matrix(np.asarray(self.rotation_wxyz))
+        q = np.asarray(self.rotation_wxyz, dtype=np.float64)
+        if q.shape != (4,):
+            raise ValueError(f"StaticBox rotation_wxyz={self.rotation_wxyz!r} must be 4 numbers (w, x, y, z)")
+        try:
+            quat_to_matrix(q)
+        except ValueError as exc:
+            raise ValueError(f"StaticBox rotation_wxyz={self.rotation_wxyz!r}: {exc}") from None
 
     @property
     def rotation(self) -> np.ndarray:
-        return quat_wxyz_to_matrix(np.asarray(self.rotation_wxyz))
+        """World-from-box rotation matrix (3, 3)."""
+        return quat_to_matrix(self.rotation_wxyz)
 
 
 @wp.func

@@ -20,7 +20,7 @@ from data_gen.sim.contact_points import ContactPoints, SurfaceSamples, surface_s
 from data_gen.sim.cubature import sample_cubature
 from data_gen.sim.material import Material
 from data_gen.sim.presets import QualityPreset, load_preset
-from data_gen.sim.recording import ContactEventTracker, FrameRecorder, SimulationInfo, SimulationResult
+from data_gen.sim.recording import ContactEventTracker, FrameRecorder, SimulationRunSummary, SimulationResult
 from data_gen.sim.reduced import DTYPE, ReducedObject, z_to_q
 from data_gen.sim.skinning import (
     SkinningBasis,
@@ -30,8 +30,9 @@ from data_gen.sim.skinning import (
     train_skinning_basis,
 )
 from data_gen.sim.solver import ImplicitEulerSolver, SimBody, SimulationError
-from data_gen.sim.static_scene import StaticScene, quat_wxyz_to_matrix
+from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.threads import torch_threads
+from newtphys.rotations import quat_to_matrix
 
 __all__ = ["SimObjectSpec", "Simulator", "SimulationError"]
 
@@ -156,7 +157,7 @@ class Simulator:
             basis = train_skinning_basis(
                 pts, num_h, mat.poisson_ratio, settings=settings, seed=seed, cache_dir=self.cache_dir
             )
-        rot = quat_wxyz_to_matrix(np.asarray(spec.orientation_wxyz))
+        rot = quat_to_matrix(spec.orientation_wxyz)
         pos = np.asarray(spec.position_m, dtype=np.float64)
 
         def scene_side(points: torch.Tensor) -> torch.Tensor:
@@ -278,7 +279,7 @@ class Simulator:
             if (step + 1) % sub == 0:
                 self._record(recorder, solver)
         wall = time.perf_counter() - t_start
-        info = SimulationInfo(
+        info = SimulationRunSummary(
             quality=self.preset.name,
             dt_s=dt,
             substeps=sub,

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from newtphys import geometry, schema
+from newtphys import schema
+from newtphys.rotations import quat_to_matrix
 from newtphys.shards import ShardReader
 from newtphys.world_state import WorldState
 
@@ -125,7 +126,7 @@ class SequenceView:
     def box(self, frame: int, object_id: int) -> Box:
         b = self.state(frame, object_id).extra["box"]
         return Box(np.asarray(b["center"], np.float64), np.asarray(b["extents"], np.float64),
-                   geometry.quat_to_matrix(np.asarray(b["rotation"], np.float64)))  # fmt: skip
+                   quat_to_matrix(np.asarray(b["rotation"], np.float64)))  # fmt: skip
 
     def visible(self, frame: int, object_id: int) -> bool:
         """The paper's visibility rule: enough of the silhouette and enough of the image."""

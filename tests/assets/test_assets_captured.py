@@ -1,30 +1,24 @@
-"""Captured splats: get_scene("ply:...") (file splats render; floor z = 0 and the captured geometry collide)
+"""Captured splats: get_scene_layout("ply:...") (file splats render; floor z = 0 and the captured geometry collide)
 and get_object("ply:...")."""
 
 import numpy as np
 import pytest
 
-from data_gen.assets.gaussians_from_geometry import (
-    SurfaceGaussians,
-    gaussians_from_object,
-    gaussians_from_scene,
-)
-from data_gen.assets.library import get_object
+from data_gen.assets.gaussians_from_geometry import gaussians_from_object, gaussians_from_scene
 from data_gen.assets.ply_io import export_splats
-from data_gen.assets.scenes import get_scene
+from data_gen.assets.registry import get_object, get_scene_layout
 from data_gen.assets.voxel_shape import VoxelShape
+from data_gen.gaussians import Gaussians
 
 
-def _splats(means: np.ndarray, opacity: float = 0.9) -> SurfaceGaussians:
+def _splats(means: np.ndarray, opacity: float = 0.9) -> Gaussians:
     n = len(means)
     rng = np.random.default_rng(0)
-    return SurfaceGaussians(
-        means,
-        np.full((n, 3), 0.003),
-        np.tile([1.0, 0, 0, 0], (n, 1)),
-        rng.uniform(0, 1, (n, 3)),
-        np.full(n, opacity),
-        np.zeros(n, np.int32),
+    return Gaussians(
+        means_m=means,
+        scales_m=np.full((n, 3), 0.003),
+        colors_rgb=rng.uniform(0, 1, (n, 3)),
+        opacities=np.full(n, opacity),
     )
 
 
@@ -41,7 +35,7 @@ def _y_up_room(tmp_path):
 
 def test_captured_scene_is_z_up_metric_on_the_floor(tmp_path):
     path, g = _y_up_room(tmp_path)
-    scene = get_scene(f"ply:{path}?up=y&scale=0.01")
+    scene = get_scene_layout(f"ply:{path}?up=y&scale=0.01")
     assert scene.kind == "captured" and scene.boxes == () and scene.splats is not None
     # file (x, y, z) cm -> world (x, -z, y) m, then ground=auto puts the floor (1st percentile of z) at 0
     f = g.means_m.astype(np.float64)
@@ -71,34 +65,34 @@ def test_captured_scene_is_z_up_metric_on_the_floor(tmp_path):
 
 def test_captured_scene_collision_options(tmp_path):
     path, _ = _y_up_room(tmp_path)
-    floor_only = get_scene(f"ply:{path}?up=y&scale=0.01&collide=floor")
+    floor_only = get_scene_layout(f"ply:{path}?up=y&scale=0.01&collide=floor")
     assert floor_only.collision_points_m is None and "collision" not in floor_only.to_world_state()
     np.testing.assert_allclose(floor_only.sdf([[2.0, 1.0, 0.45]]), [0.45])  # the chair is not collidable
-    thin = get_scene(f"ply:{path}?up=y&scale=0.01&thickness=0.01")
+    thin = get_scene_layout(f"ply:{path}?up=y&scale=0.01&thickness=0.01")
     assert thin.collision_radius_m == 0.01
     np.testing.assert_allclose(thin.sdf([[2.05, 1.0, 0.45]]), [0.05 - 0.01], atol=1e-6)
     with pytest.raises(ValueError, match="collide"):
-        get_scene(f"ply:{path}?collide=walls")
+        get_scene_layout(f"ply:{path}?collide=walls")
     with pytest.raises(ValueError, match="thickness"):
-        get_scene(f"ply:{path}?thickness=2")
+        get_scene_layout(f"ply:{path}?thickness=2")
 
 
 def test_captured_scene_keep_ground_and_errors(tmp_path):
     path, _ = _y_up_room(tmp_path)
-    kept = get_scene(f"ply:{path}?up=y&scale=0.01&ground=keep")
+    kept = get_scene_layout(f"ply:{path}?up=y&scale=0.01&ground=keep")
     assert float(np.median(kept.splats.means_m[:, 2])) == pytest.approx(0.30, abs=1e-5)
     with pytest.raises(ValueError, match="ground='floor'"):
-        get_scene(f"ply:{path}?ground=floor")
+        get_scene_layout(f"ply:{path}?ground=floor")
     with pytest.raises(ValueError, match="unknown option 'units'"):
-        get_scene(f"ply:{path}?units=cm")
+        get_scene_layout(f"ply:{path}?units=cm")
     with pytest.raises(FileNotFoundError, match="nowhere.ply"):
-        get_scene(f"ply:{tmp_path / 'nowhere.ply'}")
+        get_scene_layout(f"ply:{tmp_path / 'nowhere.ply'}")
     bad = tmp_path / "bad.ply"
     bad.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n0\n")
     with pytest.raises(ValueError, match="bad.ply"):
-        get_scene(f"ply:{bad}")
+        get_scene_layout(f"ply:{bad}")
     with pytest.raises(KeyError, match="empty_floor"):
-        get_scene("no_such_scene")
+        get_scene_layout("no_such_scene")
 
 
 def _sphere_splats(tmp_path, radius_m: float = 0.1, n: int = 20000):
@@ -167,8 +161,9 @@ def test_objects_land_on_captured_furniture(tmp_path):
     objects are placed above the table and come to rest on it, a thickness above its samples, instead of
     falling through to the floor as when only the floor collided."""
     from data_gen.configs import render_settings, scenario_config
-    from data_gen.pipeline import build_objects, scene_layout, simulate
-    from data_gen.scene import sample_scenario
+    from data_gen.assets.registry import get_scene_layout
+from data_gen.pipeline import build_objects, simulate
+    from data_gen.scenario import sample_scenario
     from data_gen.sim.presets import load_preset
 
     u, v = np.meshgrid(np.linspace(-1.5, 1.5, 61), np.linspace(-1.5, 1.5, 61), indexing="ij")
@@ -178,7 +173,7 @@ def test_objects_land_on_captured_furniture(tmp_path):
     top = np.stack([tu.ravel(), tv.ravel(), np.full(tu.size, 0.3)], 1)
     export_splats(tmp_path / "room.ply", _splats(np.concatenate([floor, top])))
     reference = f"ply:{tmp_path}/room.ply?ground=keep"
-    scene = get_scene(reference)
+    scene = get_scene_layout(reference)
     assert scene.collision_radius_m == pytest.approx(0.015)  # 0.75 x the 2 cm spacing of the table top
     cfg = scenario_config(
         "drop", scenes=(reference,), objects=("toy_brick", "ball"), num_objects=(2, 2), size_m=(0.08, 0.1),
@@ -186,7 +181,7 @@ def test_objects_land_on_captured_furniture(tmp_path):
     )  # fmt: skip
     scenario = sample_scenario(cfg, "table", 3, "train", "earth", 26, 25.0, (32, 32))
     objects = build_objects(scenario, render_settings(object_gaussians=800, interior_points=400))
-    result = simulate(scenario, objects, scene_layout(scenario.scene), load_preset("draft"))
+    result = simulate(scenario, objects, get_scene_layout(scenario.scene), load_preset("draft"))
     for track in result.objects:
         bottom = track.contact_positions_m[..., 2] - track.contact_radius_m[None]  # (frames, spheres)
         # never sinks into the table's collision surface by more than its contact spheres' radius

@@ -6,23 +6,20 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from data_gen.assets.gaussians_from_geometry import (
-    SurfaceGaussians,
     box_gaussians,
-    concatenate,
     floor_gaussians,
     gaussians_from_mesh,
     gaussians_from_object,
     gaussians_from_scene,
     gaussians_from_shape,
-    quat_multiply,
 )
-from data_gen.assets.library import get_object
-from data_gen.assets.scenes import get_scene
+from data_gen.assets.registry import get_object, get_scene_layout
 from data_gen.assets.shapes import Cylinder, Sphere, Union, place
-from newtphys.geometry import matrix_to_quat, quat_to_matrix
+from data_gen.gaussians import Gaussians, concatenate
+from newtphys.rotations import quat_to_matrix
 
 
-def coverage(g: SurfaceGaussians, queries: np.ndarray, k: int = 16) -> float:
+def coverage(g: Gaussians, queries: np.ndarray, k: int = 16) -> float:
     """Fraction of query points where some Gaussian passes the binarised test opacity * exp(-q/2) >= 0.5."""
     _, idx = cKDTree(g.means_m).query(queries, k=k)
     rot = quat_to_matrix(g.rotations_wxyz[idx].astype(np.float64))
@@ -31,7 +28,7 @@ def coverage(g: SurfaceGaussians, queries: np.ndarray, k: int = 16) -> float:
     return float((g.opacities[idx] * np.exp(-q / 2) >= 0.5).any(axis=1).mean())
 
 
-def normals_of(g: SurfaceGaussians) -> np.ndarray:
+def normals_of(g: Gaussians) -> np.ndarray:
     return quat_to_matrix(g.rotations_wxyz.astype(np.float64))[:, :, 2]
 
 
@@ -88,7 +85,7 @@ def test_mesh_face_colours_are_used():
 
 
 def test_floor_grid_is_flat_textured_and_hole_free():
-    scene = get_scene("empty_floor")
+    scene = get_scene_layout("empty_floor")
     g = floor_gaussians(scene, 0.05)
     cells = int(np.ceil(2 * scene.floor_half_extent_m / 0.05))
     assert len(g) == cells**2
@@ -101,7 +98,7 @@ def test_floor_grid_is_flat_textured_and_hole_free():
 
 
 def test_box_gaussians_on_faces_with_outward_normals():
-    scene = get_scene("ramp")
+    scene = get_scene_layout("ramp")
     box = scene.boxes[0]  # tilted plank
     g = box_gaussians(box, 0.02, part_id=1)
     shape = box.shape()
@@ -134,17 +131,6 @@ def test_transformed_moves_means_and_rotations():
     assert len(both) == 400
 
 
-def test_quat_multiply_matches_matrix_product():
-    rng = np.random.default_rng(0)
-    a, b = rng.normal(size=(50, 4)), rng.normal(size=(50, 4))
-    a /= np.linalg.norm(a, axis=1, keepdims=True)
-    b /= np.linalg.norm(b, axis=1, keepdims=True)
-    np.testing.assert_allclose(
-        quat_to_matrix(quat_multiply(a, b)), quat_to_matrix(a) @ quat_to_matrix(b), atol=1e-12
-    )
-    np.testing.assert_allclose(np.abs(matrix_to_quat(quat_to_matrix(a))), np.abs(a), atol=1e-12)
-
-
 def test_surface_gaussians_validation():
     ok = {
         "means_m": np.zeros((2, 3)),
@@ -154,15 +140,15 @@ def test_surface_gaussians_validation():
         "opacities": np.ones(2),
         "part_ids": np.zeros(2),
     }
-    SurfaceGaussians(**ok)
+    Gaussians(**ok)
     with pytest.raises(ValueError, match="scales_m"):
-        SurfaceGaussians(**{**ok, "scales_m": np.zeros((2, 3))})
+        Gaussians(**{**ok, "scales_m": -np.ones((2, 3))})
     with pytest.raises(ValueError, match="opacities"):
-        SurfaceGaussians(**{**ok, "opacities": np.full(2, 1.5)})
+        Gaussians(**{**ok, "opacities": np.full(2, 1.5)})
     with pytest.raises(ValueError, match="means_m"):
-        SurfaceGaussians(**{**ok, "means_m": np.full((2, 3), np.nan)})
+        Gaussians(**{**ok, "means_m": np.full((2, 3), np.nan)})
     with pytest.raises(ValueError, match="rotations_wxyz"):
-        SurfaceGaussians(**{**ok, "rotations_wxyz": np.zeros((2, 3))})
+        Gaussians(**{**ok, "rotations_wxyz": np.zeros((2, 3))})
     with pytest.raises(ValueError, match="spacing_m or count"):
         gaussians_from_mesh(Sphere(0.1).to_mesh(), np.random.default_rng(0))
 

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from data_gen.assets.gaussians_from_geometry import gaussians_from_object
-from data_gen.assets.library import get_object, list_objects
 from data_gen.assets.materials import get_material
 from data_gen.assets.meshing import solid_volume_m3, surface_mesh
+from data_gen.assets.registry import get_object, list_objects
 from data_gen.assets.shapes import Box, Shell, Sphere
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 HOLLOW = (
     "bag",

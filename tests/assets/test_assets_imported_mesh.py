@@ -5,8 +5,9 @@ import pytest
 import trimesh
 
 from data_gen.assets.gaussians_from_geometry import gaussians_from_object
-from data_gen.assets.library import CATEGORIES, get_object, semantic_id
 from data_gen.assets.mesh_shape import MeshShape
+from data_gen.assets.object_asset import CATEGORIES, semantic_id
+from data_gen.assets.registry import get_object
 from data_gen.assets.shapes import Scaled
 
 

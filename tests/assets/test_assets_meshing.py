@@ -5,8 +5,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from data_gen.assets import meshing
-from data_gen.assets.library import get_object
-from data_gen.assets.shapes import Box, Scaled, Sphere, axis_angle_wxyz, mesh_sdf, place
+from data_gen.assets.registry import get_object
+from data_gen.assets.shapes import Box, Scaled, Sphere, mesh_sdf, place
+from newtphys.rotations import axis_angle_to_quat
 
 
 def test_random_sizes_mesh_once_and_scale_exactly():
@@ -38,7 +39,7 @@ def test_reused_mesh_matches_remeshing_at_the_scaled_spacing():
 
 def test_transformed_and_nested_scaling_reuse():
     box = Box((0.1, 0.05, 0.02))
-    q = axis_angle_wxyz((0.0, 0.0, 1.0), np.pi / 2)
+    q = axis_angle_to_quat((0.0, 0.0, 1.0), np.pi / 2)
     moved = place(box, (1.0, 2.0, 3.0), q)
     m = meshing.surface_mesh(moved, 0.01)
     lo, hi = m.bounds

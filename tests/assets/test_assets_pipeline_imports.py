@@ -5,24 +5,23 @@ import numpy as np
 import pytest
 import trimesh
 
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
 from data_gen.assets.materials import get_material
 from data_gen.assets.ply_io import export_splats
+from data_gen.gaussians import Gaussians
 
 
-def _splats(means: np.ndarray, scale_m: float, rgb) -> SurfaceGaussians:
+def _splats(means: np.ndarray, scale_m: float, rgb) -> Gaussians:
     n = len(means)
-    return SurfaceGaussians(
-        means, np.full((n, 3), scale_m), np.tile([1.0, 0, 0, 0], (n, 1)), np.tile(rgb, (n, 1)),
-        np.full(n, 0.95), np.zeros(n, np.int32),
-    )  # fmt: skip
+    return Gaussians(
+        means_m=means, scales_m=np.full((n, 3), scale_m), colors_rgb=np.tile(rgb, (n, 1)), opacities=np.full(n, 0.95)
+    )
 
 
 @pytest.mark.slow
 def test_captured_scene_with_imported_objects_generates_a_sequence(tmp_path):
     from data_gen.configs import render_settings, scenario_config
     from data_gen.pipeline import generate_sequence
-    from data_gen.scene import sample_scenario
+    from data_gen.scenario import sample_scenario
     from data_gen.sim.presets import load_preset
 
     u, v = np.meshgrid(np.linspace(-150, 150, 121), np.linspace(-150, 150, 121), indexing="ij")

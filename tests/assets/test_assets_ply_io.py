@@ -1,4 +1,5 @@
-"""3DGS .ply I/O: bit-exact round trips, encodings against hand values, up-axis conversion, bad files, meshes."""
+"""3DGS .ply I/O: bit-exact round trips, encodings against hand values, up-axis conversion, bad files, meshes
+(the PLY format itself in every encoding: tests/assets/test_assets_ply_format.py)."""
 
 import warnings
 
@@ -6,7 +7,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
 from data_gen.assets.ply_io import (
     SH_C0,
     PlyFormatError,
@@ -23,7 +23,8 @@ from data_gen.assets.ply_io import (
     up_axis_rotation,
     write_splat_ply,
 )
-from newtphys.geometry import quat_to_matrix
+from data_gen.gaussians import Gaussians
+from newtphys.rotations import quat_to_matrix
 
 FIELDS = ("positions", "normals", "f_dc", "f_rest", "opacity_logit", "log_scales", "rotations_wxyz")
 
@@ -61,7 +62,7 @@ def test_raw_round_trip_is_bit_exact(tmp_path, k):
 
 
 def test_encodings_against_hand_values(tmp_path):
-    g = SurfaceGaussians(
+    g = Gaussians(
         means_m=[[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]],
         scales_m=[[1.0, np.exp(-3.0), 0.5], [0.1, 0.1, 0.1]],
         rotations_wxyz=[[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]],
@@ -110,13 +111,12 @@ def test_encodings_against_hand_values(tmp_path):
 def test_surface_gaussians_round_trip(tmp_path):
     rng = np.random.default_rng(4)
     q = rng.normal(size=(500, 4))
-    g = SurfaceGaussians(
-        rng.normal(size=(500, 3)),
-        rng.uniform(1e-4, 1e-1, (500, 3)),
-        q / np.linalg.norm(q, axis=1, keepdims=True),
-        rng.uniform(0, 1, (500, 3)),
-        rng.uniform(0.05, 0.99, 500),
-        np.zeros(500),
+    g = Gaussians(
+        means_m=rng.normal(size=(500, 3)),
+        scales_m=rng.uniform(1e-4, 1e-1, (500, 3)),
+        rotations_wxyz=q / np.linalg.norm(q, axis=1, keepdims=True),
+        colors_rgb=rng.uniform(0, 1, (500, 3)),
+        opacities=rng.uniform(0.05, 0.99, 500),
     )
     export_splats(tmp_path / "r.ply", g)
     back, raw = import_splats(tmp_path / "r.ply")
@@ -138,8 +138,8 @@ def test_y_up_to_z_up_and_metric_scale(tmp_path):
         np.testing.assert_allclose(up_axis_rotation(axis) @ up, [0, 0, 1], atol=1e-15)
         np.testing.assert_allclose(np.linalg.det(up_axis_rotation(axis)), 1.0)
     # a capture in centimetres, Y up: a splat 100 cm above the origin, elongated along Y
-    g = SurfaceGaussians(
-        [[0.0, 100.0, 0.0]], [[1.0, 10.0, 1.0]], [[1.0, 0, 0, 0]], [[0.2, 0.4, 0.6]], [0.9], [0]
+    g = Gaussians(
+        means_m=[[0.0, 100.0, 0.0]], scales_m=[[1.0, 10.0, 1.0]], colors_rgb=[[0.2, 0.4, 0.6]], opacities=[0.9]
     )
     export_splats(tmp_path / "y.ply", g)
     z, _ = import_splats(tmp_path / "y.ply", scale=0.01, up_axis="y")
@@ -176,7 +176,7 @@ def test_bad_files_name_the_problem(tmp_path):
     write_splat_ply(tmp_path / "g.ply", good)
     lines, body = header_and_body(tmp_path / "g.ply")
     _write_header(tmp_path / "ascii.ply", [lines[0], "format ascii 1.0"] + lines[2:], body)
-    with pytest.raises(PlyFormatError, match="format"):
+    with pytest.raises(PlyFormatError, match=r"ascii.ply: ascii body: token 0 .* is not a number; the body is not text"):
         read_splat_ply(tmp_path / "ascii.ply")
     _write_header(
         tmp_path / "noopac.ply",
@@ -204,12 +204,10 @@ def test_bad_files_name_the_problem(tmp_path):
     with pytest.raises(ValueError, match="scales_m"):
         export_splats(
             tmp_path / "z.ply",
-            SurfaceGaussians(
-                np.zeros((1, 3)), -np.ones((1, 3)), [[1.0, 0, 0, 0]], np.zeros((1, 3)), [1.0], [0]
-            ),
+            Gaussians(means_m=np.zeros((1, 3)), scales_m=-np.ones((1, 3)), colors_rgb=np.zeros((1, 3)), opacities=[1.0]),
         )
     assert encode_gaussians(
-        SurfaceGaussians(np.zeros((1, 3)), np.ones((1, 3)), [[1.0, 0, 0, 0]], np.zeros((1, 3)), [1.0], [0])
+        Gaussians(means_m=np.zeros((1, 3)), scales_m=np.ones((1, 3)), colors_rgb=np.zeros((1, 3)), opacities=[1.0])
     ).opacity_logit[0] == pytest.approx(
         np.log((1 - 1e-6) / 1e-6), rel=1e-5
     )  # opacity 1 is clipped before the logit

@@ -17,9 +17,9 @@ from data_gen.assets.shapes import (
     Sphere,
     Torus,
     Union,
-    axis_angle_wxyz,
     place,
 )
+from newtphys.rotations import axis_angle_to_quat
 
 
 def test_sphere_sdf():
@@ -78,7 +78,7 @@ def test_ellipsoid_sign_and_sphere_limit():
 
 def test_transformed_and_scaled():
     # a 2 x 1 x 1 (half extents) box rotated 90 deg about z becomes 1 x 2 x 1, then moved by (5, 0, 0)
-    b = place(Box((2.0, 1.0, 1.0)), (5.0, 0.0, 0.0), axis_angle_wxyz((0, 0, 1), np.pi / 2))
+    b = place(Box((2.0, 1.0, 1.0)), (5.0, 0.0, 0.0), axis_angle_to_quat((0, 0, 1), np.pi / 2))
     np.testing.assert_allclose(b.sdf([[5, 0, 0], [7, 0, 0], [5, 3, 0]]), [-1.0, 1.0, 1.0], atol=1e-12)
     np.testing.assert_allclose(b.bounds(), [[4, -2, -1], [6, 2, 1]], atol=1e-12)
     s = Scaled(Sphere(1.0), 0.25)

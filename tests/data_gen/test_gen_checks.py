@@ -52,7 +52,7 @@ def test_non_finite_and_tunnelling_are_rejected(resting_box, plant, reason):
 def test_hollow_objects_get_contact_spheres_inside_their_envelope():
     """A cardboard box is a closed 1 mm shell: fitted against the wall itself no sphere of useful size
     fits (all 128 kept their 25.6 mm radius and poked out); against the envelope they touch the outside."""
-    from data_gen.assets.library import get_object
+    from data_gen.assets.registry import get_object
     from data_gen.pipeline import envelope_sdf
     from data_gen.sim.contact_points import SurfaceSamples, surface_spheres
 

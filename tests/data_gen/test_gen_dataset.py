@@ -9,6 +9,7 @@ import pytest
 
 from newtphys import geometry, schema
 from newtphys.consistency import TOLERANCES, check_sequence
+from newtphys.rotations import quat_to_matrix
 from newtphys.shards import ShardReader, list_shards, read_index
 from newtphys.validate import validate_paths
 
@@ -79,7 +80,7 @@ def test_scene_flow_matches_rigid_motion(generated_root: Path) -> None:
                 on = seq.maps[schema.INSTANCES][t] == o.id
                 if o.num_handles != 1 or on.sum() < 5:
                     continue
-                rel = geometry.quat_to_matrix(b.orientation) @ geometry.quat_to_matrix(a.orientation).T
+                rel = quat_to_matrix(b.orientation) @ quat_to_matrix(a.orientation).T
                 moved = (pts[on] - np.asarray(a.position)) @ rel.T + np.asarray(b.position)
                 expected = geometry.rotate_vectors(seq.world_to_camera[t], moved - pts[on])
                 err = np.linalg.norm(seq.maps[schema.SCENE_FLOW][t][on] - expected, axis=-1)

@@ -12,7 +12,7 @@ from data_gen.assets import material_taxonomy as mt
 from data_gen.assets.materials import list_materials
 from data_gen.display_names import color_name, display_names
 from data_gen.object_boxes import oriented_box
-from newtphys import geometry
+from newtphys.rotations import matrix_to_quat, quat_to_matrix
 from newtphys.shards import ShardReader, list_shards
 
 
@@ -46,10 +46,10 @@ def test_material_taxonomy_levels() -> None:
 
 
 def test_oriented_box_of_a_rotated_box() -> None:
-    q = geometry.matrix_to_quat(geometry.quat_to_matrix(np.array([np.cos(0.4), 0.3, -0.5, 0.6])))
+    q = matrix_to_quat(quat_to_matrix(np.array([np.cos(0.4), 0.3, -0.5, 0.6])))
     q = q / np.linalg.norm(q)
     corners = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.05, 0.05) for z in (-0.02, 0.02)])
-    world = corners @ geometry.quat_to_matrix(q).T + np.array([1.0, 2.0, 0.5])
+    world = corners @ quat_to_matrix(q).T + np.array([1.0, 2.0, 0.5])
     box = oriented_box(world, q)
     assert box["extents"] == pytest.approx([0.2, 0.1, 0.04], abs=1e-12)
     assert box["center"] == pytest.approx([1.0, 2.0, 0.5], abs=1e-12)

@@ -6,8 +6,9 @@ import numpy as np
 
 import data_gen.pipeline as pipeline
 from data_gen.configs import render_settings, scenario_config
-from data_gen.pipeline import build_objects, scene_layout, simulate
-from data_gen.scene import sample_scenario
+from data_gen.assets.registry import get_scene_layout
+from data_gen.pipeline import build_objects, simulate
+from data_gen.scenario import sample_scenario
 from data_gen.sim.presets import load_preset
 
 
@@ -25,7 +26,7 @@ def test_thin_stiff_pencil_among_four_objects_stays_above_the_ground(monkeypatch
     assert [o.asset for o in scenario.objects][-1] == "pencil"
     monkeypatch.setattr(pipeline, "check_simulation", lambda *a, **k: None)  # assert here, not by rejection
     objects = build_objects(scenario, render_settings(object_gaussians=4000, interior_points=1500))
-    result = simulate(scenario, objects, scene_layout(scenario.scene), load_preset("standard"))
+    result = simulate(scenario, objects, get_scene_layout(scenario.scene), load_preset("standard"))
     for track in result.objects:
         assert np.isfinite(track.com_m).all()
         penetration = -(track.contact_positions_m[..., 2] - track.contact_radius_m[None]).min()

@@ -12,7 +12,7 @@ from hydra.errors import MissingConfigException
 from data_gen import generator as generator_module
 from data_gen.pipeline import SequenceRejected
 from data_gen.configs import scenario_config
-from data_gen.scene import ScenarioError, counterfactual, sample_scenario
+from data_gen.scenario import ScenarioError, counterfactual, sample_scenario
 from newtphys import schema
 from newtphys.shards import ShardReader, list_shards
 from tests.data_gen.conftest import compose_generate, generate
@@ -112,14 +112,14 @@ def test_camera_paths_see_past_walls() -> None:
     """In the walled room_corner scene the first camera draw of this pile sequence sat 0.3 m behind a wall
     (y = -1.33 m, wall at y = -1.05 m): 8 objects were simulated for 70 s and then rejected as out of view.
     Cameras are now redrawn until, along the whole path, they stay outside the geometry and see an object."""
-    from data_gen.assets.scenes import get_scene
+    from data_gen.assets.registry import get_scene_layout
     from data_gen.pipeline import camera_matrices
-    from data_gen.scene import CAMERA_CLEARANCE_M
+    from data_gen.scenario import CAMERA_CLEARANCE_M
 
     cfg = scenario_config("pile")
     for seed in (1926383459, *range(20)):
         scenario = sample_scenario(cfg, "s", seed, "train", "earth", 50, 25.0, (48, 48))
-        scene = get_scene(scenario.scene)
+        scene = get_scene_layout(scenario.scene)
         _, w2c = camera_matrices(scenario)
         eyes = np.einsum("fji,fj->fi", w2c[:, :3, :3], -w2c[:, :3, 3])  # camera centres -R^T t, m
         assert scene.sdf(eyes).min() >= CAMERA_CLEARANCE_M, (seed, scenario.scene)

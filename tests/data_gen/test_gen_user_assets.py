@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from data_gen.assets.gaussians_from_geometry import SurfaceGaussians
+from data_gen.gaussians import Gaussians
 from data_gen.assets.ply_io import export_splats
 from data_gen.configs import scenario_config
-from data_gen.scene import ScenarioError, sample_scenario
+from data_gen.scenario import ScenarioError, sample_scenario
 from newtphys.shards import ShardReader, list_shards
 from newtphys.validate import validate_shard
 
@@ -27,12 +27,10 @@ REPO = Path(__file__).resolve().parents[2]
 BOX_EXTENT_CM = (20.0, 10.0, 6.0)
 
 
-def _splats(means: np.ndarray, scale: float, rgb) -> SurfaceGaussians:
+def _splats(means: np.ndarray, scale: float, rgb) -> Gaussians:
     n = len(means)
-    return SurfaceGaussians(
-        means, np.full((n, 3), scale), np.tile([1.0, 0, 0, 0], (n, 1)), np.tile(rgb, (n, 1)),
-        np.full(n, 0.95), np.zeros(n, np.int32),
-    )  # fmt: skip
+    return Gaussians(means_m=means, scales_m=np.full((n, 3), scale), colors_rgb=np.tile(rgb, (n, 1)),
+                     opacities=np.full(n, 0.95))  # fmt: skip
 
 
 def _fibonacci_sphere(n: int, radius: float) -> np.ndarray:

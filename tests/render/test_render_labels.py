@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 from data_gen.render.labels import LabelRasterizer, gather_labels, render_label_index, render_mask_of_subset
 from data_gen.render.reference_torch import render_label_index_torch
 from newtphys.geometry import intrinsics_from_fov, look_at

@@ -1,17 +1,20 @@
-"""EWA projection: hand-computed J Sigma J^T, culling, warp vs torch reference."""
+"""EWA projection: hand-computed J Sigma J^T, culling, warp vs torch reference, device rotations."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import warp as wp
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 from data_gen.render.projection import (
     DEFAULT_DILATION_PX2,
+    _rotation_wxyz,
     project_gaussians,
     project_gaussians_torch,
 )
 from newtphys.geometry import intrinsics_from_fov, look_at, project, transform_points
+from newtphys.rotations import quat_to_matrix
 
 H, W = 48, 64
 
@@ -183,3 +186,20 @@ def test_threaded_projection_is_identical() -> None:
     assert one.project(g, cam, 0.5) == three.project(g, cam, 0.5) > 0
     for key, value in one.to_numpy().items():
         assert value.tobytes() == three.to_numpy()[key].tobytes(), key
+
+
+@wp.kernel
+def _rotations_kernel(quats: wp.array(dtype=wp.vec4), out: wp.array(dtype=wp.mat33)):
+    i = wp.tid()
+    out[i] = _rotation_wxyz(quats[i])
+
+
+def test_device_quaternion_rotation_agrees_with_the_rotations_module() -> None:
+    q = np.random.default_rng(3).normal(size=(300, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[:3] = [[np.sqrt(0.5), np.sqrt(0.5), 0, 0], [np.sqrt(0.5), 0, np.sqrt(0.5), 0], [np.sqrt(0.5), 0, 0, np.sqrt(0.5)]]
+    wp.init()
+    out = wp.zeros(len(q), dtype=wp.mat33, device="cpu")
+    wp.launch(_rotations_kernel, dim=len(q), inputs=[wp.array(q.astype(np.float32), dtype=wp.vec4, device="cpu"), out])
+    np.testing.assert_allclose(out.numpy(), quat_to_matrix(q), atol=1e-6)  # float32 on the device
+    np.testing.assert_allclose(out.numpy()[2], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-6)  # 90 deg about z

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians
 from data_gen.render.reference_torch import render_rgb_torch
 from data_gen.render.rgb import ALPHA_MIN, RgbRasterizer, render_rgb
 from newtphys.geometry import intrinsics_from_fov, look_at

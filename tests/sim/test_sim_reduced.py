@@ -5,7 +5,7 @@ import torch
 
 from data_gen.sim import material as mat
 from data_gen.sim.reduced import ReducedObject, deform, q_to_z, z_to_q
-from data_gen.sim.static_scene import quat_wxyz_to_matrix
+from newtphys.rotations import quat_to_matrix
 
 D = torch.float64
 
@@ -43,7 +43,7 @@ def test_deform_matches_the_kinematics_formula():
 
 def test_rigid_translation_and_rotation_have_zero_energy():
     obj, _ = random_object()
-    rot = quat_wxyz_to_matrix(np.array([0.8, 0.1, -0.5, 0.3]))
+    rot = quat_to_matrix(np.array([0.8, 0.1, -0.5, 0.3]))
     z = torch.zeros(36, dtype=D)
     z[:12] = torch.from_numpy(np.concatenate([rot - np.eye(3), [[1.5], [-2.0], [0.7]]], 1).reshape(-1))
     q = z_to_q(z)

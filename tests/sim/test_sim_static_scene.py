@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from data_gen.sim.static_scene import StaticBox, StaticScene, quat_wxyz_to_matrix
+from data_gen.sim.static_scene import StaticBox, StaticScene
+from newtphys.rotations import quat_to_matrix
 
 
 def test_ground_and_axis_aligned_box_analytic():
@@ -33,7 +34,7 @@ def test_rotated_box_warp_matches_torch_and_rotation():
     np.testing.assert_allclose(normal, normal_t.numpy(), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-12)
     # a point on the box's local +x axis, 0.3 m outside its face: distance 0.3, normal = R e_x
-    rot = quat_wxyz_to_matrix(quat)
+    rot = quat_to_matrix(quat)
     p = np.array(box.center_m) + rot @ np.array([0.7, 0.0, 0.0])
     d, n = StaticScene(ground=False, boxes=(box,)).query(p[None])
     np.testing.assert_allclose(d, [0.3], atol=1e-12)

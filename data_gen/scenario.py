@@ -1,6 +1,6 @@
 """Scenarios: what happens in one sequence, drawn from a config and a seed.
 
-A :class:`Scenario` is declarative and complete: static scene name, every
+A :class:`Scenario` is declarative and complete: scene layout name, every
 object (asset, size, material parameters, pose, velocities), gravity, camera
 path parameters, frame count and image size. The simulator, the renderer
 and the shard writer all read the same scenario and never change it.
@@ -23,12 +23,11 @@ import numpy as np
 from data_gen.assets.asset_uri import is_asset_reference
 from data_gen.assets.captured import check_scene_reference
 from data_gen.assets.imported import check_object_reference
-from data_gen.assets.library import get_object, list_objects
 from data_gen.assets.materials import sample_material
-from data_gen.assets.scenes import get_scene, list_scenes
+from data_gen.assets.registry import get_object, get_scene_layout, list_objects, list_scene_layouts
 from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, path_from_spec, sample_camera_spec
 from newtphys import schema
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import axis_angle_to_quat, quat_to_matrix
 
 MOTIONS = ("drop", "throw", "push")
 
@@ -144,9 +143,9 @@ class ScenarioConfig:
                     check_scene_reference(s)
                 except (ValueError, KeyError, FileNotFoundError) as e:
                     raise ScenarioError(f"scenario '{self.name}': scene {s!r}: {_message(e)}") from None
-            elif s not in list_scenes():
+            elif s not in list_scene_layouts():
                 raise ScenarioError(
-                    f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scenes()} or "
+                    f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scene_layouts()} or "
                     "'ply:<captured scene .ply>?<options>'"
                 )
         for o in self.objects or ():
@@ -202,8 +201,8 @@ def _random_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
 
 
 def _yaw_quat(rng: np.random.Generator) -> tuple[float, float, float, float]:
-    a = rng.uniform(0, 2 * np.pi)
-    return (float(np.cos(a / 2)), 0.0, 0.0, float(np.sin(a / 2)))
+    q = axis_angle_to_quat((0.0, 0.0, 1.0), rng.uniform(0, 2 * np.pi))
+    return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
 
 def _uniform(rng: np.random.Generator, r: Sequence[float]) -> float:
@@ -230,7 +229,7 @@ def sample_scenario(
     ss = np.random.SeedSequence(seed)
     rng_scene, rng_obj, rng_cam, rng_g = (np.random.default_rng(s) for s in ss.spawn(4))
     scene_name = cfg.scenes[int(rng_scene.integers(len(cfg.scenes)))]
-    scene = get_scene(scene_name)
+    scene = get_scene_layout(scene_name)
     pool = list(cfg.objects or list_objects())
     n = int(rng_obj.integers(cfg.num_objects[0], cfg.num_objects[1] + 1))
     motions = list(cfg.motions)

@@ -1,10 +1,17 @@
-"""A set of 3D Gaussian splats: the only scene description the renderer knows.
+"""3D Gaussian splats: the one container that assets build, the pipeline skins and the renderer draws.
 
-A Gaussian ``i`` has a centre ``means_m[i]`` (world frame, m), a shape given
-either by per-axis standard deviations ``scales_m[i]`` (m) and a rotation
-``rotations_wxyz[i]`` (unit quaternion, (w, x, y, z)), or directly by a world
-covariance ``covariances_m2[i]`` (m^2), a colour ``colors_rgb[i]`` in [0, 1]
-and an opacity ``opacities[i]`` in [0, 1].
+A Gaussian ``i`` has a centre ``means_m[i]`` (m, in the frame of whoever holds
+it: an asset's local frame or the world), a shape given either by per-axis
+standard deviations ``scales_m[i]`` (m) and an orientation ``rotations_wxyz[i]``
+(quaternion (w, x, y, z) taking the Gaussian's axes to that frame), or directly
+by a covariance ``covariances_m2[i]`` (m^2), a colour ``colors_rgb[i]`` in
+[0, 1], an opacity ``opacities[i]`` in [0, 1] and a part id ``part_ids[i]``
+(what the splat belongs to: an object's part, a scene box + 1 with 0 for the
+floor, or an object id; 0 when not given).
+
+Rotations are kept as given (3DGS files store them unnormalised, and the
+encoded bytes must survive a round trip); ``unit_rotations_wxyz`` is their
+normalised float32 form, which is what the renderer reads.
 
 Only *surface* Gaussians are rendered. Interior particles that exist only for
 the simulation must not be passed to the renderer (they would show up in the
@@ -19,15 +26,18 @@ through the local deformation gradient ``F``: Sigma -> F Sigma F^T
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from newtphys.geometry import quat_to_matrix
+from newtphys.rotations import matrix_to_quat, quat_multiply, quat_to_matrix
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+I32 = NDArray[np.int32]
 
 #: Relative tolerance for the symmetry / positive semi-definiteness of a given covariance.
 COVARIANCE_TOLERANCE = 1e-6
@@ -63,7 +73,7 @@ def _check_range(name: str, arr: F32, low: float, high: float) -> None:
 
 @dataclass(frozen=True, kw_only=True)
 class Gaussians:
-    """N Gaussian splats (arrays are converted to contiguous float32 and validated).
+    """N Gaussian splats (arrays are converted to contiguous float32, part ids to int32, and validated).
 
     Give either ``scales_m`` (with optional ``rotations_wxyz``, identity when
     omitted) or ``covariances_m2``, not both.
@@ -75,6 +85,7 @@ class Gaussians:
     rotations_wxyz: F32 | None = None
     colors_rgb: F32
     opacities: F32
+    part_ids: I32 | None = None
 
     def __post_init__(self) -> None:
         means = _as_float_array("means_m", self.means_m, (3,), None)
@@ -87,6 +98,7 @@ class Gaussians:
         opac = _as_float_array("opacities", self.opacities, (), n)
         _check_range("opacities", opac, 0.0, 1.0)
         set_("opacities", opac)
+        set_("part_ids", _as_part_ids(self.part_ids, n))
 
         if (self.scales_m is None) == (self.covariances_m2 is None):
             raise ValueError("Gaussians needs exactly one of scales_m (N,3) or covariances_m2 (N,3,3)")
@@ -98,21 +110,20 @@ class Gaussians:
             set_("covariances_m2", cov)
             return
         scales = _as_float_array("scales_m", self.scales_m, (3,), n)
-        _check_range("scales_m", scales, 0.0, np.inf)
+        _check_range("scales_m", scales, 0.0, np.inf)  # 0 is a flat splat
         set_("scales_m", scales)
         if self.rotations_wxyz is None:
             rot = np.zeros((n, 4), np.float32)
             rot[:, 0] = 1.0
         else:
             rot = _as_float_array("rotations_wxyz", self.rotations_wxyz, (4,), n)
-            norm = np.linalg.norm(rot, axis=1)
-            bad = norm < 1e-8
+            bad = np.linalg.norm(rot, axis=1) < 1e-8
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
                 raise ValueError(
-                    f"Gaussians.rotations_wxyz[{i}] = {rot[i].tolist()} has zero norm; need a unit quaternion"
+                    f"Gaussians.rotations_wxyz[{i}] = {rot[i].tolist()} has zero norm; "
+                    "need a (w, x, y, z) rotation"
                 )
-            rot = (rot / norm[:, None]).astype(np.float32)
         set_("rotations_wxyz", rot)
 
     def _set_field(self, name: str, value: object) -> None:
@@ -121,12 +132,20 @@ class Gaussians:
     def __len__(self) -> int:
         return int(self.means_m.shape[0])
 
+    @functools.cached_property
+    def unit_rotations_wxyz(self) -> F32:
+        """(N, 4) float32 unit quaternions (the rotations normalised); covariance-form Gaussians have none."""
+        if self.rotations_wxyz is None:
+            raise ValueError("Gaussians given by covariances_m2 have no rotations")
+        norm = np.linalg.norm(self.rotations_wxyz, axis=1)
+        return (self.rotations_wxyz / norm[:, None]).astype(np.float32)
+
     def covariances(self) -> F64:
-        """World covariances (N, 3, 3), m^2, float64: given ones, or R diag(s^2) R^T."""
+        """Covariances (N, 3, 3), m^2, float64: given ones, or R diag(s^2) R^T."""
         if self.covariances_m2 is not None:
             return self.covariances_m2.astype(np.float64)
-        assert self.scales_m is not None and self.rotations_wxyz is not None
-        rot = quat_to_matrix(self.rotations_wxyz.astype(np.float64))
+        assert self.scales_m is not None
+        rot = quat_to_matrix(self.unit_rotations_wxyz.astype(np.float64))
         rs = rot * self.scales_m.astype(np.float64)[:, None, :]  # R S (columns scaled)
         return rs @ np.swapaxes(rs, 1, 2)
 
@@ -150,7 +169,36 @@ class Gaussians:
             covariances_m2=cov,
             colors_rgb=self.colors_rgb,
             opacities=self.opacities,
+            part_ids=self.part_ids,
         )
+
+    def transformed(self, transform: ArrayLike) -> Gaussians:
+        """The Gaussians moved by a rigid 4x4 transform (means, and rotations or covariances; scales unchanged)."""
+        m = np.asarray(transform, np.float64)
+        if m.shape != (4, 4):
+            raise ValueError(f"transform must be a 4x4 rigid matrix, got shape {m.shape}")
+        r = m[:3, :3]
+        means = self.means_m.astype(np.float64) @ r.T + m[:3, 3]
+        if self.covariances_m2 is not None:
+            return dataclasses.replace(self, means_m=means, covariances_m2=r @ self.covariances() @ r.T)
+        assert self.rotations_wxyz is not None
+        q = quat_multiply(matrix_to_quat(r)[None, :], self.rotations_wxyz.astype(np.float64))
+        return dataclasses.replace(self, means_m=means, rotations_wxyz=q)
+
+    def scaled(self, factor: float) -> Gaussians:
+        """The Gaussians scaled uniformly about the origin by ``factor`` (> 0): centres and sizes."""
+        if not (np.isfinite(factor) and factor > 0.0):
+            raise ValueError(f"scale factor must be a finite value > 0, got {factor}")
+        if self.covariances_m2 is not None:
+            return dataclasses.replace(
+                self, means_m=self.means_m * factor, covariances_m2=self.covariances_m2 * factor**2
+            )
+        assert self.scales_m is not None
+        return dataclasses.replace(self, means_m=self.means_m * factor, scales_m=self.scales_m * factor)
+
+    def with_part_ids(self, part_ids: ArrayLike) -> Gaussians:
+        """The same Gaussians with other part ids (N,)."""
+        return dataclasses.replace(self, part_ids=part_ids)
 
     def subset(self, selection: ArrayLike) -> Gaussians:
         """The Gaussians picked by a boolean mask (N,) or an index array."""
@@ -159,6 +207,29 @@ class Gaussians:
             raise ValueError(f"boolean selection must have shape ({len(self)},), got {sel.shape}")
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         return Gaussians(**{k: (None if v is None else v[sel]) for k, v in fields.items()})
+
+
+def concatenate(items: Sequence[Gaussians]) -> Gaussians:
+    """One Gaussians holding all of ``items`` in order (all given by scales + rotations, or all by covariances)."""
+    if not items:
+        raise ValueError("concatenate: items must hold at least one Gaussians")
+    forms = {g.covariances_m2 is None for g in items}
+    if len(forms) != 1:
+        raise ValueError("concatenate: items mix scales + rotations with covariances; deform them all first")
+    fields = [f.name for f in dataclasses.fields(Gaussians)]
+    joined = {
+        k: None if getattr(items[0], k) is None else np.concatenate([getattr(g, k) for g in items]) for k in fields
+    }
+    return Gaussians(**joined)
+
+
+def _as_part_ids(value: ArrayLike | None, count: int) -> I32:
+    if value is None:
+        return np.zeros(count, np.int32)
+    ids = np.ascontiguousarray(np.asarray(value), np.int32)
+    if ids.shape != (count,):
+        raise ValueError(f"Gaussians.part_ids must have shape ({count},), got {ids.shape}")
+    return ids
 
 
 def _check_covariances(cov: F32) -> None:

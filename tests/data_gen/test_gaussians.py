@@ -1,11 +1,11 @@
-"""Gaussians container: validation, covariances, deformation."""
+"""The splat container: validation, covariances, deformation, rigid moves, scaling, concatenation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from data_gen.render.gaussians import Gaussians
+from data_gen.gaussians import Gaussians, concatenate
 
 
 def _one(**overrides: object) -> Gaussians:
@@ -21,10 +21,13 @@ def test_covariance_from_scales_and_rotation() -> None:
     h = np.sqrt(0.5)
     g = _one(rotations_wxyz=[[h, 0.0, 0.0, h]])
     np.testing.assert_allclose(g.covariances()[0], np.diag([0.04, 0.01, 0.09]), atol=1e-7)
-    # identity rotation when omitted, quaternions get normalised
+    # identity rotation when omitted; rotations are kept as given and normalised for use
     np.testing.assert_allclose(_one().covariances()[0], np.diag([0.01, 0.04, 0.09]), atol=1e-8)
     g2 = _one(rotations_wxyz=[[2.0, 0.0, 0.0, 0.0]])
-    np.testing.assert_allclose(g2.rotations_wxyz, [[1.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(g2.rotations_wxyz, [[2.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(g2.unit_rotations_wxyz, [[1.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(g2.covariances()[0], np.diag([0.01, 0.04, 0.09]), atol=1e-8)
+    np.testing.assert_array_equal(_one().part_ids, [0])  # part ids default to 0
 
 
 def test_deformation_gradient_maps_covariance() -> None:
@@ -83,3 +86,40 @@ def test_bad_input_names_field_and_value(overrides: dict[str, object], message: 
 def test_bad_deformation_shape() -> None:
     with pytest.raises(ValueError, match=r"deformation_gradients must have shape \(1, 3, 3\), got \(3, 3\)"):
         _one().deformed(np.eye(3))
+
+
+def test_rigid_transform_scaling_and_part_ids_by_hand() -> None:
+    h = np.sqrt(0.5)
+    g = Gaussians(
+        means_m=[[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+        scales_m=[[0.1, 0.2, 0.3], [0.1, 0.1, 0.1]],
+        rotations_wxyz=[[1.0, 0.0, 0.0, 0.0], [h, 0.0, 0.0, h]],
+        colors_rgb=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        opacities=[0.5, 1.0],
+        part_ids=[3, 4],
+    )
+    m = np.eye(4)
+    m[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # 90 degrees about z
+    m[:3, 3] = [0.0, 0.0, 2.0]
+    t = g.transformed(m)
+    np.testing.assert_allclose(t.means_m, [[0.0, 1.0, 2.0], [0.0, 0.0, 3.0]], atol=1e-7)
+    np.testing.assert_allclose(t.rotations_wxyz, [[h, 0, 0, h], [0, 0, 0, 1]], atol=1e-7)  # quarter + quarter turn
+    np.testing.assert_allclose(t.covariances()[0], np.diag([0.04, 0.01, 0.09]), atol=1e-8)
+    np.testing.assert_array_equal(t.part_ids, [3, 4])
+    s = g.scaled(2.0)
+    np.testing.assert_allclose(s.means_m, [[2.0, 0.0, 0.0], [0.0, 0.0, 2.0]])
+    np.testing.assert_allclose(s.scales_m, [[0.2, 0.4, 0.6], [0.2, 0.2, 0.2]])
+    d = g.deformed(np.broadcast_to(np.eye(3), (2, 3, 3)))
+    np.testing.assert_allclose(d.transformed(m).covariances(), t.covariances(), atol=1e-8)
+    np.testing.assert_array_equal(d.part_ids, [3, 4])
+    np.testing.assert_array_equal(g.with_part_ids([7, 8]).part_ids, [7, 8])
+    both = concatenate([g, g.subset([1])])
+    assert len(both) == 3
+    np.testing.assert_array_equal(both.part_ids, [3, 4, 4])
+    np.testing.assert_array_equal(both.means_m[2], [0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="mix scales"):
+        concatenate([g, d])
+    with pytest.raises(ValueError, match=r"part_ids must have shape \(2,\), got \(3,\)"):
+        g.with_part_ids([1, 2, 3])
+    with pytest.raises(ValueError, match="scale factor must be a finite value > 0, got 0.0"):
+        g.scaled(0.0)

@@ -1,22 +1,31 @@
-"""Static scene layouts: free placement regions above supports, floor and box SDF, world-state export."""
+"""Scene layouts: free placement regions above supports, floor and box SDF, world-state export."""
 
 import json
 
 import numpy as np
 import pytest
 
-from data_gen.assets.scenes import RAMP_ANGLE_DEG, PlacementRegion, get_scene, list_scenes
+from data_gen.assets.layouts import RAMP_ANGLE_DEG
+from data_gen.assets.registry import (
+    get_object,
+    get_scene_layout,
+    is_object_name,
+    is_scene_layout_name,
+    list_scene_layouts,
+)
+from data_gen.assets.scene_layout import PlacementRegion
+from data_gen.scenario import ScenarioConfig, ScenarioError
 
 
 def test_at_least_five_layouts():
-    names = list_scenes()
+    names = list_scene_layouts()
     assert len(names) >= 5 and len(set(names)) == len(names)
     assert {"empty_floor", "table", "bench_steps", "shelf_wall", "ramp", "room_corner"} <= set(names)
 
 
-@pytest.mark.parametrize("name", list_scenes())
+@pytest.mark.parametrize("name", list_scene_layouts())
 def test_regions_are_free_space(name):
-    scene = get_scene(name)
+    scene = get_scene_layout(name)
     rng = np.random.default_rng(0)
     for region in scene.regions:
         p = region.sample(2000, rng)
@@ -24,9 +33,9 @@ def test_regions_are_free_space(name):
         assert scene.sdf(p).min() > 0.03, f"{name}/{region.name} overlaps static geometry"
 
 
-@pytest.mark.parametrize("name", list_scenes())
+@pytest.mark.parametrize("name", list_scene_layouts())
 def test_floor_sdf_and_world_state(name):
-    scene = get_scene(name)
+    scene = get_scene_layout(name)
     far = np.array([[50.0, 50.0, 0.3], [50.0, -50.0, -0.2]])
     np.testing.assert_allclose(scene.sdf(far), [0.3, -0.2])
     _d, part = scene.sdf_and_part(far)
@@ -36,7 +45,7 @@ def test_floor_sdf_and_world_state(name):
 
 
 def test_table_region_is_above_the_table_top():
-    scene = get_scene("table")
+    scene = get_scene_layout("table")
     region = scene.region("table_top")
     top = scene.boxes[0]
     top_z = top.center_m[2] + top.half_extents_m[2]
@@ -47,7 +56,7 @@ def test_table_region_is_above_the_table_top():
 
 
 def test_ramp_surface_has_the_stated_slope():
-    scene = get_scene("ramp")
+    scene = get_scene_layout("ramp")
     ramp = scene.boxes[0]
     angle = np.deg2rad(RAMP_ANGLE_DEG)
     xs = np.linspace(-0.5, 0.5, 11)
@@ -66,4 +75,18 @@ def test_bad_region_and_unknown_scene():
     with pytest.raises(ValueError, match="above the floor"):
         PlacementRegion("r", (0, 0, -1), (1, 1, 0.5))
     with pytest.raises(KeyError, match="empty_floor"):
-        get_scene("moon_base")
+        get_scene_layout("moon_base")
+
+
+def test_registry_resolves_names_and_references_and_scenario_configs_accept_them():
+    assert is_scene_layout_name("ramp") and is_scene_layout_name("ply:/data/room.ply?up=y")
+    assert not is_scene_layout_name("moon_base") and not is_scene_layout_name("file:/data/room.obj")
+    assert is_object_name("mug") and is_object_name("file:/m.obj") and is_object_name("ply:/t.ply")
+    assert not is_object_name("unicorn") and not is_object_name("obj:/m.obj")
+    with pytest.raises(KeyError, match=r"scheme in \['file', 'ply'\]"):
+        get_object("obj:/m.obj")
+    # references pass the config check (they are opened when a scenario is drawn), unknown names do not
+    cfg = ScenarioConfig.from_mapping({"scenes": ["table", "ply:/data/room.ply"], "objects": ["mug", "file:/m.obj"]})
+    assert cfg.scenes == ("table", "ply:/data/room.ply")
+    with pytest.raises(ScenarioError, match="unknown scene 'moon_base'"):
+        ScenarioConfig.from_mapping({"scenes": ["moon_base"]})
