@@ -137,28 +137,10 @@ class ScenarioConfig:
         return out
 
     def check(self) -> None:
-        for s in self.scenes:
-            if is_asset_reference(s):
-                try:
-                    check_scene_reference(s)
-                except (ValueError, KeyError, FileNotFoundError) as e:
-                    raise ScenarioError(f"scenario '{self.name}': scene {s!r}: {_message(e)}") from None
-            elif s not in list_scene_layouts():
-                raise ScenarioError(
-                    f"scenario '{self.name}': unknown scene {s!r}; valid scenes: {list_scene_layouts()} or "
-                    "'ply:<captured scene .ply>?<options>'"
-                )
-        for o in self.objects or ():
-            if is_asset_reference(o):
-                try:
-                    check_object_reference(o)
-                except (ValueError, KeyError, FileNotFoundError) as e:
-                    raise ScenarioError(f"scenario '{self.name}': object {o!r}: {_message(e)}") from None
-            elif o not in list_objects():
-                raise ScenarioError(
-                    f"scenario '{self.name}': unknown object {o!r}; valid objects: {list_objects()} or "
-                    "'file:<mesh>?<options>' / 'ply:<3DGS object .ply>?<options>'"
-                )
+        _check_names(self.name, "scene", self.scenes, check_scene_reference, list_scene_layouts(),
+                     "'ply:<captured scene .ply>?<options>'")
+        _check_names(self.name, "object", self.objects or (), check_object_reference, list_objects(),
+                     "'file:<mesh>?<options>' / 'ply:<3DGS object .ply>?<options>'")
         if self.max_placement_tries < 1:
             raise ScenarioError(f"scenario '{self.name}': max_placement_tries must be >= 1, got {self.max_placement_tries}")
         lo, hi = self.num_objects
@@ -175,6 +157,20 @@ class ScenarioConfig:
             lo, hi = getattr(self, key)
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
                 raise ScenarioError(f"scenario '{self.name}': {key} must be a range 0 <= min <= max, got {(lo, hi)}")
+
+
+def _check_names(scenario: str, kind: str, names, check_reference, catalogue: list[str], reference_hint: str) -> None:
+    """Each name is a catalogue entry or a user reference that passes its cheap checks (file, options)."""
+    for name in names:
+        if is_asset_reference(name):
+            try:
+                check_reference(name)
+            except (ValueError, KeyError, FileNotFoundError) as e:
+                raise ScenarioError(f"scenario '{scenario}': {kind} {name!r}: {_message(e)}") from None
+        elif name not in catalogue:
+            raise ScenarioError(
+                f"scenario '{scenario}': unknown {kind} {name!r}; valid {kind}s: {catalogue} or {reference_hint}"
+            )
 
 
 def _message(error: Exception) -> str:

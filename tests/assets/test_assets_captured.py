@@ -161,8 +161,7 @@ def test_objects_land_on_captured_furniture(tmp_path):
     objects are placed above the table and come to rest on it, a thickness above its samples, instead of
     falling through to the floor as when only the floor collided."""
     from data_gen.configs import render_settings, scenario_config
-    from data_gen.assets.registry import get_scene_layout
-from data_gen.pipeline import build_objects, simulate
+    from data_gen.pipeline import build_objects, simulate
     from data_gen.scenario import sample_scenario
     from data_gen.sim.presets import load_preset
 

@@ -119,13 +119,20 @@ def modulus_similar_lay(ctx: Context) -> Question:
                     "Which object would feel about as stiff as the {name} if you pressed on it?")
 
 
-def _highest_log(ctx: Context, text: str) -> Question:
-    ranked = _ranked(ctx, "young_modulus", True)
-    if math.log10(ranked[0][1]) - math.log10(ranked[1][1]) < MODULUS_HIGHEST_LOG10_GAP:
-        raise NotAnswerable("modulus_gap_below_0.2_decades")
+def _top_by_difference(ctx: Context, key: str, gap: float, log: bool, reason: str, text: str) -> Question:
+    """The visible object with the highest ``key``, ahead of the runner-up by ``gap`` (in log10 when ``log``)."""
+    ranked = _ranked(ctx, key, True)
+    scale = math.log10 if log else float
+    if scale(ranked[0][1]) - scale(ranked[1][1]) < gap:
+        raise NotAnswerable(reason)
     best = ranked[0][0]
     return Question(text, ctx.name(best), ctx.name_distractors([best]), best, "", tuple(i for i, _ in ranked),
-                    "stiffest", meta=_meta(ctx, best))  # fmt: skip
+                    f"{key}-highest", meta=_meta(ctx, best))  # fmt: skip
+
+
+def _highest_log(ctx: Context, text: str) -> Question:
+    return _top_by_difference(ctx, "young_modulus", MODULUS_HIGHEST_LOG10_GAP, True, "modulus_gap_below_0.2_decades",
+                              text)
 
 
 @question("F_PHYSICS_PROPERTY_YOUNG_MODULUS_HIGHEST")
@@ -174,12 +181,7 @@ def poisson_similar_lay(ctx: Context) -> Question:
 
 
 def _poisson_highest(ctx: Context, text: str) -> Question:
-    ranked = _ranked(ctx, "poisson_ratio", True)
-    if ranked[0][1] - ranked[1][1] < POISSON_HIGHEST_GAP:
-        raise NotAnswerable("poisson_gap_below_0.02")
-    best = ranked[0][0]
-    return Question(text, ctx.name(best), ctx.name_distractors([best]), best, "", tuple(i for i, _ in ranked),
-                    "poisson-highest", meta=_meta(ctx, best))  # fmt: skip
+    return _top_by_difference(ctx, "poisson_ratio", POISSON_HIGHEST_GAP, False, "poisson_gap_below_0.02", text)
 
 
 @question("F_PHYSICS_PROPERTY_POISSON_RATIO_HIGHEST")
