@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from data_gen.assets.registry import list_objects
 from data_gen.display_names import words
 from data_gen.vqa.rules import NotAnswerable, Question, pick
 from data_gen.vqa.view import SequenceView
@@ -48,8 +49,6 @@ class Context:
         return tuple(chosen)
 
     def library_names_not_in_scene(self) -> list[str]:
-        from data_gen.assets.library import list_objects
-
         present = {o.name for o in self.view.world_state.objects}
         present_words = {self.view.name(o.id) for o in self.view.world_state.objects} | {words(n) for n in present}
         return [words(n) for n in list_objects() if n not in present and words(n) not in present_words]
