@@ -71,17 +71,18 @@ def label_scenario(camera_kind: str):
     """Four objects on the empty floor, no spin, every one in view for all frames:
 
     1. a wooden block (0.16 x 0.08 x 0.048 m, rigid) dropped 4 cm: free fall, lands at frame 3, rests;
-    2. a plastic die (5 cm, rigid) dropped 10 cm onto the block: object-object contact from frame 4;
-    3. a book (rigid) pushed along the floor at 1 m/s: slides 11 cm and stops (horizontal scene flow);
+    2. a small book (0.12 x 0.08 x 0.017 m, rigid) dropped 6 cm onto the block: object-object contact from
+       frame 3; thin, so the contact band is visible on its sides (5-11 collision pixels per frame);
+    3. a book (0.2 m, rigid) pushed along the floor at 1 m/s: slides 11 cm and stops (horizontal scene flow);
     4. a foam yoga block (8 cm, soft: 3 handles) dropped 3 cm onto the floor: rests.
-    Materials (wood, plastic, paper, foam) differ, so a label taken from the wrong object shows.
+    Objects 1 and 4 differ in material and class from each other and from the books.
     """
     from data_gen.cameras import HANDHELD_TERMS, CameraPathSpec
     from data_gen.scene import Scenario
 
     objects = (
         _placement(1, "wooden_block", 0.16, "wood", 1.0e10, 0.35, 600.0, (0.0, 0.0, 0.024 + 0.04)),
-        _placement(2, "dice", 0.05, "plastic", 2.0e9, 0.38, 1100.0, (0.02, 0.0, 0.048 + 0.025 + 0.10)),
+        _placement(2, "book", 0.12, "paper", 2.0e9, 0.3, 800.0, (0.0, 0.0, 0.048 + 0.0087 + 0.06)),
         _placement(3, "book", 0.2, "paper", 2.0e9, 0.3, 800.0, (-0.12, -0.2, 0.0145 + 0.002),
                    velocity_m_s=(1.0, 0.0, 0.0), motion="push"),
         _placement(4, "yoga_block", 0.08, "foam", 3.0e5, 0.3, 150.0, (0.17, -0.17, 0.0174 + 0.03)),

@@ -246,7 +246,7 @@ def test_label_scenes_exercise_the_labels(label_sequences: dict) -> None:
             assert all(f.objects[o.id - 1].visible_pixels >= 30 for f in ws.frames), o.name  # in view throughout
             assert len(_resting_frames(seq, o.id)) >= 5, o.name  # comes to rest
         assert _first_contact_frame(seq, 1) >= 3  # 3 frames of free fall for the wooden block
-        assert any(set(ev.objects) == {1, 2} for ev in ws.collisions)  # the die lands on the block
+        assert any(set(ev.objects) == {1, 2} for ev in ws.collisions)  # the small book lands on the block
         assert [o.num_handles > 1 for o in ws.objects] == [False, False, False, True]  # rigid x 3, soft x 1
         book = np.array([f.objects[2].position for f in ws.frames])
         assert (np.linalg.norm(np.diff(book[:, :2], axis=0), axis=1) > 0.01).sum() >= 3  # slides >= 1 cm/frame
@@ -255,14 +255,6 @@ def test_label_scenes_exercise_the_labels(label_sequences: dict) -> None:
     assert yaw.min() > 2.0  # orbit: degrees per frame
     down = handheld.world_to_camera[:, :3, :3].astype(np.float64) @ np.array([0.0, 0.0, -1.0])
     assert np.linalg.norm(np.diff(down, axis=0), axis=1).max() > 100 * GRAVITY_REL_TOL  # handheld tilts
-
-
-@pytest.mark.parametrize("camera", ["orbit", "handheld"])
-def test_label_sequences_pass_the_cross_map_checks(label_sequences: dict, camera: str) -> None:
-    """newtphys.consistency (what ``validate --deep`` runs) accepts the label scenes under moving cameras."""
-    for r in check_sequence(label_sequences[camera]):
-        assert r.max_error <= TOLERANCES[r.name], str(r)
-        assert r.num_pixels > 0, r.name
 
 
 def test_gravity_map_uses_its_own_frames_camera(label_sequences: dict) -> None:
@@ -279,34 +271,36 @@ def test_gravity_map_uses_its_own_frames_camera(label_sequences: dict) -> None:
 
 
 def test_collision_pixels_appear_on_visible_objects_in_contact(label_sequences: dict) -> None:
-    """Contacts show up in the collision map: from the onset frame on, on every rigid object touching the
-    floor; never on an object before its first contact."""
+    """Contacts show up in the collision map: from the onset frame on, on every visible rigid object in
+    contact, with the floor (block, big book) or only with another object (the small book on the block);
+    never on an object before its first contact."""
     for seq in label_sequences.values():
         ws = seq.world_state
         col, ids = seq.maps[schema.COLLISION], seq.maps[schema.INSTANCES]
         onsets = {ev.objects[0]: ev.frame for ev in ws.collisions if ev.objects[1] == 0}
+        kinds = set()
         for oid in _rigid_ids(seq):
             on = ids == oid
             hits = (col & on).reshape(ws.num_frames, -1).sum(axis=1)
             visible = on.reshape(ws.num_frames, -1).sum(axis=1)
             first = _first_contact_frame(seq, oid)
-            assert hits[:first].sum() == 0, (seq.world_state.sequence_id, oid, hits[:first])
-            floor_frames = [t for t, f in enumerate(ws.frames) if 0 in f.objects[oid - 1].contacts and visible[t] >= 50]
+            assert first >= 1 and hits[:first].sum() == 0, (ws.sequence_id, oid, hits[:first])
+            contacts = [ws.frames[t].objects[oid - 1].contacts for t in range(ws.num_frames)]
+            frames = [t for t in range(ws.num_frames) if contacts[t] and visible[t] >= 50]
             if oid in onsets:
-                assert onsets[oid] in floor_frames and hits[onsets[oid]] > 0, (oid, onsets[oid], hits)
-            for t in floor_frames:  # every frame of floor contact shows some of it
-                assert hits[t] >= 1, (seq.world_state.sequence_id, oid, t, visible[t])
-            if floor_frames:  # and a fair share: measured 5-9 % (block), 55-60 % (thin book)
-                assert hits[floor_frames].sum() >= 0.03 * visible[floor_frames].sum(), (oid, hits, visible)
-        # both rigid objects that touch the floor (block, book) were checked, and the die lay on the block
-        assert {1, 3} <= set(onsets)
-    # an object that has not touched anything yet shows no collision: checked over >= 2 frames per object above
+                assert onsets[oid] in frames and hits[onsets[oid]] > 0, (oid, onsets[oid], hits)
+            for t in frames:  # every frame of contact shows some of it
+                assert hits[t] >= 1, (ws.sequence_id, oid, t, contacts[t], visible[t])
+            # and a fair share: measured 6-10 % (block; small book on it), 55-60 % (thin big book on the floor)
+            assert hits[frames].sum() >= 0.03 * visible[frames].sum(), (oid, hits, visible)
+            kinds |= {"floor" if 0 in contacts[t] else "object only" for t in frames}
+        assert kinds == {"floor", "object only"}, kinds
 
 
 def test_resting_object_stress_is_compressive_in_the_map(label_sequences: dict) -> None:
     """A resting object is in compression in the stress map: rigid and alone on the floor exactly
-    -rho g z_com / 3 (mean stress theorem), rigid under a load or on another object at least -rho g h / 6
-    (h its smallest extent).
+    -rho g z_com / 3 (mean stress theorem); rigid under a load or on another object below -rho g h / 12
+    (h its smallest extent; a body on a support at height z_s has -rho g (z_com - z_s) / 3 = -rho g h / 6).
 
     Soft objects are not checked here: the reduced field of the 3-handle foam block, resting alone on the
     floor, averages -0.1 .. -0.7 Pa over its visible pixels (volume mean -5 Pa, theory -8.5 Pa) and +5 .. +8 Pa
@@ -330,7 +324,7 @@ def test_resting_object_stress_is_compressive_in_the_map(label_sequences: dict) 
                 np.testing.assert_allclose(means, -rho * g * z / 3.0, rtol=STRESS_REL_TOL, err_msg=o.name)
                 checked["alone"] += 1
             else:
-                assert means.max() <= -0.9 * rho * g * min(o.size) / 6.0, (o.name, means)
+                assert means.max() <= -0.5 * rho * g * min(o.size) / 6.0, (o.name, means)
                 checked["loaded"] += 1
     assert checked["alone"] >= 2 and checked["loaded"] >= 2, checked
 
@@ -382,6 +376,14 @@ def test_floor_depth_lies_on_the_ground_plane(label_sequences: dict) -> None:
 def test_amodal_masks_contain_the_visible_pixels_and_carry_their_objects_ids(label_sequences: dict) -> None:
     for seq in label_sequences.values():
         assert check_amodal_masks(seq) == []
+
+
+@pytest.mark.parametrize("camera", ["orbit", "handheld"])
+def test_label_sequences_pass_the_cross_map_checks(label_sequences: dict, camera: str) -> None:
+    """newtphys.consistency (what ``validate --deep`` runs) accepts the label scenes under moving cameras."""
+    for r in check_sequence(label_sequences[camera]):
+        assert r.max_error <= TOLERANCES[r.name], str(r)
+        assert r.num_pixels > 0, r.name
 
 
 # --------------------------------------------------------------------------- #
