@@ -6,8 +6,9 @@
     python tools/mutate.py --json bench/results/mutate.json
 
 The working tree is never modified: the repository's files (tracked, and untracked ones git does not
-ignore) are snapshot when the run starts and copied to a temporary directory once per mutant, the snippet is replaced there, and the
-mutant's selected default-run tests (``-m "not slow" -x``) run in that copy under a per-mutant timeout.
+ignore) are snapshot when the run starts and copied to a temporary directory once per mutant; the
+snippet is replaced there, and the mutant's selected default-run tests (``-m "not slow" -x``) run in
+that copy under a per-mutant timeout.
 Before the mutants, the union of all selected tests runs once on the unmodified copy (the baseline):
 a mutant is only "killed" by a test that passes without it.
 
@@ -91,7 +92,7 @@ def first_failure(junit_xml: Path) -> str:
 
 
 def run_tests(copy_root: Path, tests: tuple[str, ...], timeout_s: float) -> tuple[str, str, float]:
-    """(status 'passed' | 'failed' | 'timeout', first failing test or reason, seconds) of pytest in ``copy_root``."""
+    """pytest in ``copy_root``: (status 'passed' | 'failed' | 'timeout', first failing test, seconds)."""
     report = copy_root / "mutate-junit.xml"
     env = {**os.environ, "WANDB_MODE": "offline", "HF_HUB_OFFLINE": "1", "PYTHONDONTWRITEBYTECODE": "1"}
     env.pop("PYTHONPATH", None)  # the copy's own code (pytest pythonpath ".") must be what is imported
@@ -106,7 +107,8 @@ def run_tests(copy_root: Path, tests: tuple[str, ...], timeout_s: float) -> tupl
         return "passed", "", seconds
     if proc.returncode == 5:
         raise SystemExit(f"no tests collected for {tests} in {copy_root}: fix the catalogue's test selection")
-    failed = first_failure(report) or f"pytest exit {proc.returncode}: {proc.stdout.strip().splitlines()[-1:]}"
+    last_line = proc.stdout.strip().splitlines()[-1:]
+    failed = first_failure(report) or f"pytest exit {proc.returncode}: {last_line}"
     return "failed", failed, seconds
 
 
@@ -149,8 +151,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", action="append", default=[], help="run only this mutant (repeatable)")
     parser.add_argument("--list", action="store_true", help="print the catalogue and exit")
-    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per mutant (and for the baseline)")
-    parser.add_argument("--no-baseline", action="store_true", help="skip the unmutated run of the selected tests")
+    parser.add_argument("--timeout", type=float, default=600.0,
+                        help="seconds per mutant (and for the baseline)")
+    parser.add_argument("--no-baseline", action="store_true",
+                        help="skip the unmutated run of the selected tests")
     parser.add_argument("--json", type=Path, help="also write the outcomes to this JSON file")
     args = parser.parse_args(argv)
 

@@ -62,8 +62,8 @@ def _placement(object_id: int, asset: str, size_m: float, material: str, young_m
     return ObjectPlacement(
         object_id=object_id, asset=asset, size_m=size_m, material=material, young_modulus_pa=young_modulus_pa,
         poisson_ratio=poisson_ratio, density_kg_m3=density_kg_m3, position_m=position_m,
-        orientation_wxyz=(1.0, 0.0, 0.0, 0.0), velocity_m_s=velocity_m_s, angular_velocity_rad_s=(0.0, 0.0, 0.0),
-        motion=motion, color_seed=100 + object_id,
+        orientation_wxyz=(1.0, 0.0, 0.0, 0.0), velocity_m_s=velocity_m_s,
+        angular_velocity_rad_s=(0.0, 0.0, 0.0), motion=motion, color_seed=100 + object_id,
     )
 
 
@@ -87,7 +87,8 @@ def label_scenario(camera_kind: str):
                    velocity_m_s=(1.0, 0.0, 0.0), motion="push"),
         _placement(4, "yoga_block", 0.08, "foam", 3.0e5, 0.3, 150.0, (0.17, -0.17, 0.0174 + 0.03)),
     )
-    look = dict(look_target_m=(0.0, -0.08, 0.04), radius_m=0.6, height_m=0.4, azimuth_rad=-1.2, fov_x_deg=55.0)
+    look = dict(look_target_m=(0.0, -0.08, 0.04), radius_m=0.6, height_m=0.4, azimuth_rad=-1.2,
+                fov_x_deg=55.0)
     if camera_kind == "orbit":
         camera = CameraPathSpec(kind="orbit", orbit_rate_rad_s=1.5, **look)
     elif camera_kind == "handheld":
@@ -95,7 +96,8 @@ def label_scenario(camera_kind: str):
         camera = CameraPathSpec(
             kind="handheld", jitter_m=0.05 * float(np.hypot(0.6, 0.4)),
             jitter_freqs_hz=tuple(float(f) for f in rng.uniform(1.5, 3.0, 3 * HANDHELD_TERMS)),
-            jitter_phases_rad=tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3 * HANDHELD_TERMS)), **look,
+            jitter_phases_rad=tuple(float(p) for p in rng.uniform(0.0, 2.0 * np.pi, 3 * HANDHELD_TERMS)),
+            **look,
         )
     else:
         raise ValueError(f"camera_kind must be one of {LABEL_CAMERAS}, got {camera_kind!r}")
@@ -119,6 +121,7 @@ def label_sequences(tmp_path_factory: pytest.TempPathFactory) -> dict:
     with ShardWriter(out, split="train", shard_index=0) as writer:
         for kind in LABEL_CAMERAS:
             seq, _ = generate_sequence(label_scenario(kind), load_preset("draft"), settings)
-            writer.add_sequence(seq.world_state.sequence_id, seq.maps, seq.K, seq.world_to_camera, seq.world_state)
+            ws = seq.world_state
+            writer.add_sequence(ws.sequence_id, seq.maps, seq.K, seq.world_to_camera, ws)
     with ShardReader(out / "train" / "shard-00000.h5") as reader:
         return {kind: reader.read_sequence(f"labels-{kind}") for kind in LABEL_CAMERAS}

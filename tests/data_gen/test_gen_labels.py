@@ -42,6 +42,8 @@ SCENE_FLOW_REL_TOL = 0.02
 (measured 0 to 1e-6 m); the wrong frame's camera is off by 6 % of the sliding book's flow."""
 OPTICAL_FLOW_ABS_TOL_PX = 0.05
 OPTICAL_FLOW_REL_TOL = 0.02
+OPTICAL_FLOW_MAX_BAD_FRACTION = 0.001
+"""Same scenes: measured <= 0.02 px off; half a pixel (pixel centres at integers) is 10x the tolerance."""
 STRESS_REL_TOL = 0.03
 """A rigid object resting on the floor alone: mean stress theorem, -rho g z_com / 3 (measured 0.03 % off)."""
 RESTING_SPEED_M_S = 0.01
@@ -84,8 +86,8 @@ def _resting_frames(seq: SequenceArrays, object_id: int) -> list[int]:
     ws = seq.world_state
     return [
         t for t, f in enumerate(ws.frames)
-        if np.linalg.norm(f.objects[object_id - 1].velocity) < RESTING_SPEED_M_S and f.objects[object_id - 1].contacts
-        and t >= _first_contact_frame(seq, object_id) + 3
+        if np.linalg.norm(f.objects[object_id - 1].velocity) < RESTING_SPEED_M_S
+        and f.objects[object_id - 1].contacts and t >= _first_contact_frame(seq, object_id) + 3
     ]
 
 
@@ -93,8 +95,8 @@ def _resting_frames(seq: SequenceArrays, object_id: int) -> list[int]:
 # Checks: each returns failure messages (empty = the map means what the contract says)
 # --------------------------------------------------------------------------- #
 def check_gravity_in_own_frame(seq: SequenceArrays, maps: dict | None = None) -> list[str]:
-    """gravity[t] == mass of the object shown x R_t g, with R_t the rotation of world_to_camera[t]; 0 off objects."""
-    m = maps or seq.maps
+    """gravity[t] == mass of the object shown x R_t g (R_t: rotation of world_to_camera[t]); 0 off objects."""
+    m = seq.maps if maps is None else maps
     ws = seq.world_state
     mass = np.zeros(max(o.id for o in ws.objects) + 1)
     for o in ws.objects:
@@ -103,10 +105,14 @@ def check_gravity_in_own_frame(seq: SequenceArrays, maps: dict | None = None) ->
     out = []
     for t in range(ws.num_frames):
         ids = m[schema.INSTANCES][t].astype(np.int64)
-        expected = mass[ids][..., None] * geometry.rotate_vectors(seq.world_to_camera[t].astype(np.float64), g)
-        err = np.linalg.norm(m[schema.GRAVITY][t] - expected, axis=-1) / (np.linalg.norm(g) * np.maximum(mass[ids], 1e-3))
+        rot_g = geometry.rotate_vectors(seq.world_to_camera[t].astype(np.float64), g)
+        expected = mass[ids][..., None] * rot_g
+        # relative to the force shown; off objects (mass 0) relative to the weight of 1 g
+        scale = np.linalg.norm(g) * np.maximum(mass[ids], 1e-3)
+        err = np.linalg.norm(m[schema.GRAVITY][t] - expected, axis=-1) / scale
         if err.max() > GRAVITY_REL_TOL:
-            out.append(f"frame {t}: gravity off mass x R_t g by {err.max():.3g} (relative) > {GRAVITY_REL_TOL}")
+            out.append(f"frame {t}: gravity off mass x R_t g by {err.max():.3g} (relative) "
+                       f"> {GRAVITY_REL_TOL}")
     return out
 
 
@@ -114,7 +120,7 @@ def check_object_pixels_on_their_object(seq: SequenceArrays, maps: dict | None =
     """Depth + instances: an object pixel back-projects into its object's box (world-state pose and size).
 
     Every library object of the scene is box-shaped with its centre of mass at the box centre."""
-    m = maps or seq.maps
+    m = seq.maps if maps is None else maps
     objects = _objects_by_id(seq)
     excess = []
     for t in range(seq.world_state.num_frames):
@@ -128,14 +134,14 @@ def check_object_pixels_on_their_object(seq: SequenceArrays, maps: dict | None =
     e = np.concatenate(excess)
     frac = float(np.mean(e > OUTSIDE_BOX_M))
     if frac > OUTSIDE_BOX_MAX_FRACTION:
-        return [f"{frac:.2%} of {e.size} object pixels lie > {OUTSIDE_BOX_M * 1e3:.0f} mm outside their object's box "
-                f"(allowed {OUTSIDE_BOX_MAX_FRACTION:.1%}; worst {e.max() * 1e3:.0f} mm)"]
+        return [f"{frac:.2%} of {e.size} object pixels lie > {OUTSIDE_BOX_M * 1e3:.0f} mm outside their "
+                f"object's box (allowed {OUTSIDE_BOX_MAX_FRACTION:.1%}; worst {e.max() * 1e3:.0f} mm)"]
     return []
 
 
 def check_floor_on_ground_plane(seq: SequenceArrays, maps: dict | None = None) -> list[str]:
     """Depth: pixels of the static scene (only the floor in this scene) back-project onto z = 0."""
-    m = maps or seq.maps
+    m = seq.maps if maps is None else maps
     off = []
     for t in range(seq.world_state.num_frames):
         floor = (m[schema.INSTANCES][t] == 0) & (m[schema.DEPTH][t] > 0)
@@ -143,14 +149,14 @@ def check_floor_on_ground_plane(seq: SequenceArrays, maps: dict | None = None) -
     z = np.concatenate(off)
     frac = float(np.mean(z > FLOOR_OFF_PLANE_M))
     if z.size == 0 or frac > FLOOR_OFF_PLANE_MAX_FRACTION:
-        return [f"{frac:.2%} of {z.size} floor pixels lie > {FLOOR_OFF_PLANE_M * 1e3:.0f} mm off the ground plane "
-                f"(allowed {FLOOR_OFF_PLANE_MAX_FRACTION:.1%})"]
+        return [f"{frac:.2%} of {z.size} floor pixels lie > {FLOOR_OFF_PLANE_M * 1e3:.0f} mm off the ground "
+                f"plane (allowed {FLOOR_OFF_PLANE_MAX_FRACTION:.1%})"]
     return []
 
 
 def check_amodal_masks(seq: SequenceArrays, maps: dict | None = None) -> list[str]:
     """Amodal silhouettes contain the visible pixels of their object and carry its material and class ids."""
-    m = maps or seq.maps
+    m = seq.maps if maps is None else maps
     ws = seq.world_state
     mat_ids = {name: int(k) for k, name in ws.materials.items()}
     sem_ids = {name: int(k) for k, name in ws.semantic_classes.items()}
@@ -166,14 +172,15 @@ def check_amodal_masks(seq: SequenceArrays, maps: dict | None = None) -> list[st
                            (schema.AMODAL_SEMANTIC_SEGMENTATION, sem_ids[o.category])):
             ok = np.where(amodal, m[name][:, k] == want, m[name][:, k] == 0)
             if not ok.all():
-                out.append(f"object {o.id}: {name} differs from id {want} on its silhouette / 0 off it at {int((~ok).sum())} px")
+                out.append(f"object {o.id}: {name} is not id {want} on its silhouette and 0 off it "
+                           f"at {int((~ok).sum())} px")
     return out
 
 
 def check_scene_flow_rigid_motion(seq: SequenceArrays, maps: dict | None = None) -> list[str]:
     """Scene flow of rigid objects == R_t (x_{t+1} - x_t) of the back-projected point moved by the world-state
     poses (R_t: world_to_camera[t]); exactly 0 on the static scene."""
-    m = maps or seq.maps
+    m = seq.maps if maps is None else maps
     out = []
     for t in range(seq.world_state.num_frames - 1):
         pts = _world_points(seq, m[schema.DEPTH][t], t)
@@ -191,8 +198,8 @@ def check_scene_flow_rigid_motion(seq: SequenceArrays, maps: dict | None = None)
             err = np.percentile(np.linalg.norm(flow[on] - ref, axis=-1), 95)
             tol = SCENE_FLOW_ABS_TOL_M + SCENE_FLOW_REL_TOL * float(np.median(np.linalg.norm(ref, axis=-1)))
             if err > tol:
-                out.append(f"frame {t}, object {oid}: scene flow off the rigid motion by {err * 1e3:.2f} mm (p95) "
-                           f"> {tol * 1e3:.2f} mm")
+                out.append(f"frame {t}, object {oid}: scene flow off the rigid motion by {err * 1e3:.2f} mm "
+                           f"(p95) > {tol * 1e3:.2f} mm")
     if m[schema.SCENE_FLOW][-1].any():
         out.append("the last frame has non-zero scene flow")
     return out
@@ -201,7 +208,7 @@ def check_scene_flow_rigid_motion(seq: SequenceArrays, maps: dict | None = None)
 def check_optical_flow_projection(seq: SequenceArrays, maps: dict | None = None) -> list[str]:
     """Optical flow == projection into camera t+1 of the surface point seen at t, moved by its world-state
     motion (rigid objects; the static floor stays), minus the pixel centre."""
-    m = maps or seq.maps
+    m = seq.maps if maps is None else maps
     K = seq.K.astype(np.float64)
     h, w = m[schema.DEPTH].shape[1:]
     centres = geometry.pixel_centers(h, w)
@@ -216,12 +223,13 @@ def check_optical_flow_projection(seq: SequenceArrays, maps: dict | None = None)
             on = ids == oid
             moved[on] = _rigidly_moved(seq, t, oid, pts[on])
         known = ~np.isnan(moved[..., 0])
-        uv, _ = geometry.project(geometry.transform_points(seq.world_to_camera[t + 1].astype(np.float64), moved[known]), K)
+        next_cam = geometry.transform_points(seq.world_to_camera[t + 1].astype(np.float64), moved[known])
+        uv, _ = geometry.project(next_cam, K)
         ref = uv - centres[known]
         err = np.linalg.norm(m[schema.OPTICAL_FLOW][t][known] - ref, axis=-1)
         tol = OPTICAL_FLOW_ABS_TOL_PX + OPTICAL_FLOW_REL_TOL * np.linalg.norm(ref, axis=-1)
         bad = float(np.mean(err > tol))
-        if bad > 0.001:
+        if bad > OPTICAL_FLOW_MAX_BAD_FRACTION:
             out.append(f"frame {t}: optical flow off the projected motion on {bad:.2%} of {known.sum()} px "
                        f"(worst {err.max():.2f} px)")
     if m[schema.OPTICAL_FLOW][-1].any():
@@ -242,14 +250,15 @@ def test_label_scenes_exercise_the_labels(label_sequences: dict) -> None:
         assert np.linalg.norm(np.diff(eyes, axis=0), axis=1).min() > 0.004  # the camera moves every frame (m)
         for o in ws.objects:
             first = _first_contact_frame(seq, o.id)
-            assert first >= 1 and o.id in (1, 2, 3, 4), (o.name, first)  # free fall (or push) before contact
-            assert all(f.objects[o.id - 1].visible_pixels >= 30 for f in ws.frames), o.name  # in view throughout
+            assert first >= 1, (o.name, first)  # free fall (or a push) before the first contact
+            assert min(f.objects[o.id - 1].visible_pixels for f in ws.frames) >= 30, o.name  # always in view
             assert len(_resting_frames(seq, o.id)) >= 5, o.name  # comes to rest
         assert _first_contact_frame(seq, 1) >= 3  # 3 frames of free fall for the wooden block
         assert any(set(ev.objects) == {1, 2} for ev in ws.collisions)  # the small book lands on the block
         assert [o.num_handles > 1 for o in ws.objects] == [False, False, False, True]  # rigid x 3, soft x 1
         book = np.array([f.objects[2].position for f in ws.frames])
-        assert (np.linalg.norm(np.diff(book[:, :2], axis=0), axis=1) > 0.01).sum() >= 3  # slides >= 1 cm/frame
+        slide = np.linalg.norm(np.diff(book[:, :2], axis=0), axis=1)
+        assert (slide > 0.01).sum() >= 3  # the big book slides >= 1 cm per frame for 3 frames
     rot = orbit.world_to_camera[:, :3, :3].astype(np.float64)
     yaw = np.degrees(np.arccos(np.clip((np.einsum("tij,tij->t", rot[1:], rot[:-1]) - 1) / 2, -1, 1)))
     assert yaw.min() > 2.0  # orbit: degrees per frame
@@ -261,13 +270,12 @@ def test_gravity_map_uses_its_own_frames_camera(label_sequences: dict) -> None:
     """gravity[t] = mass x g rotated by world_to_camera[t], not by a neighbouring frame's camera."""
     for seq in label_sequences.values():
         assert check_gravity_in_own_frame(seq) == []
-    # The handheld camera tilts: the neighbouring frame's rotation would be off by far more than the tolerance.
+    # The handheld camera tilts: a neighbouring frame's rotation is off by far more than the tolerance.
     seq = label_sequences["handheld"]
     w2c = seq.world_to_camera.astype(np.float64)
     g = np.asarray(seq.world_state.gravity)
-    drift = [np.linalg.norm(geometry.rotate_vectors(w2c[t + 1], g) - geometry.rotate_vectors(w2c[t], g)) / np.linalg.norm(g)
-             for t in range(len(w2c) - 1)]
-    assert max(drift) > 100 * GRAVITY_REL_TOL
+    down = np.einsum("tij,j->ti", w2c[:, :3, :3], g) / np.linalg.norm(g)  # (T, 3): g in each frame's camera
+    assert np.linalg.norm(np.diff(down, axis=0), axis=1).max() > 100 * GRAVITY_REL_TOL
 
 
 def test_collision_pixels_appear_on_visible_objects_in_contact(label_sequences: dict) -> None:
@@ -291,7 +299,7 @@ def test_collision_pixels_appear_on_visible_objects_in_contact(label_sequences: 
                 assert onsets[oid] in frames and hits[onsets[oid]] > 0, (oid, onsets[oid], hits)
             for t in frames:  # every frame of contact shows some of it
                 assert hits[t] >= 1, (ws.sequence_id, oid, t, contacts[t], visible[t])
-            # and a fair share: measured 6-10 % (block; small book on it), 55-60 % (thin big book on the floor)
+            # and a fair share: measured 6-10 % (block; small book on it), 55-60 % (big book on the floor)
             assert hits[frames].sum() >= 0.03 * visible[frames].sum(), (oid, hits, visible)
             kinds |= {"floor" if 0 in contacts[t] else "object only" for t in frames}
         assert kinds == {"floor", "object only"}, kinds
@@ -303,9 +311,10 @@ def test_resting_object_stress_is_compressive_in_the_map(label_sequences: dict) 
     (h its smallest extent; a body on a support at height z_s has -rho g (z_com - z_s) / 3 = -rho g h / 6).
 
     Soft objects are not checked here: the reduced field of the 3-handle foam block, resting alone on the
-    floor, averages -0.1 .. -0.7 Pa over its visible pixels (volume mean -5 Pa, theory -8.5 Pa) and +5 .. +8 Pa
-    when it rests on the wooden block; the map's sign there follows the simulator's coarse field, not the
-    label path."""
+    floor, averages -0.1 .. -0.7 Pa over its visible pixels (volume mean -5 Pa, theory -8.5 Pa), and
+    +5 .. +8 Pa in a variant of this scene where it rests on the wooden block; the map's sign there
+    follows the simulator's coarse field, not the label path (tests/sim/test_sim_soft_stress.py checks the
+    recorded field's volume mean)."""
     checked = {"alone": 0, "loaded": 0}
     for seq in label_sequences.values():
         ws = seq.world_state
@@ -405,7 +414,8 @@ SHIFTS: dict[str, Callable[[np.ndarray, str], np.ndarray]] = {
     "next frame": lambda a, name: np.concatenate([a[1:], a[-1:]]),
 }
 CHECKS_OF_MAP = {
-    schema.DEPTH: (check_object_pixels_on_their_object, check_floor_on_ground_plane, check_optical_flow_projection),
+    schema.DEPTH: (
+        check_object_pixels_on_their_object, check_floor_on_ground_plane, check_optical_flow_projection),
     schema.INSTANCES: (check_object_pixels_on_their_object, check_amodal_masks, check_gravity_in_own_frame),
     schema.AMODAL_INSTANCES: (check_amodal_masks,),
     schema.OPTICAL_FLOW: (check_optical_flow_projection,),
