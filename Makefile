@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 TORCH  := torch==2.14.1 torchvision==0.29.1
 PYTEST_ARGS ?=
 
-.PHONY: install test test-all demo bench clean
+.PHONY: install test test-all demo bench mutate clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -c 'import sys; assert sys.version_info[:2] >= (3, 11), "NewtPhys needs Python >= 3.11, found " + sys.version'
@@ -31,6 +31,10 @@ demo: install
 
 bench: install
 	for b in bench/bench_*.py; do $(PY) $$b --quick || exit 1; done
+
+## Plant each label bug of tools/mutants.py in a temporary copy and run its tests: see README, "Tests".
+mutate: install
+	WANDB_MODE=offline HF_HUB_OFFLINE=1 $(PY) tools/mutate.py --json bench/results/mutate.json
 
 clean:
 	rm -rf $(VENV) demo_out outputs multirun .pytest_cache

@@ -58,3 +58,29 @@ def test_validate_deep_reports_cross_map_failures(tmp_path) -> None:
     msgs = [str(p) for p in validate_paths([split], deep=True)]
     assert len(msgs) == 1 and "cross-map check failed: gravity vs mass x g" in msgs[0]
     assert validate_paths([split], deep=False) == []
+
+
+def test_failing_flags_errors_just_past_the_shipped_tolerances(seq: SequenceArrays) -> None:
+    """``validate --deep`` reports an error a few times its tolerance, in each check (a loosened tolerance
+    would let it through): 0.2 px of flow (tolerance 0.05 px), 1e-4 of gravity (1e-5), one pixel of a wrong
+    material, one collision pixel on an object that has no contact (both 0)."""
+    on = tuple(np.argwhere(seq.maps[schema.INSTANCES][1] == 1)[0])
+    planted = {}
+    m = {k: v.copy() for k, v in seq.maps.items()}
+    m[schema.OPTICAL_FLOW][1][on] += np.float32(0.2)
+    planted["optical_flow vs projected scene_flow"] = dataclasses.replace(seq, maps=m)
+    m = {k: v.copy() for k, v in seq.maps.items()}
+    m[schema.GRAVITY][1][on] *= np.float32(1.0 + 1e-4)
+    planted["gravity vs mass x g (relative)"] = dataclasses.replace(seq, maps=m)
+    m = {k: v.copy() for k, v in seq.maps.items()}
+    m[schema.MATERIALS][1][on] = 2  # object 1 is wood (id 1)
+    planted["material/semantic ids vs world state"] = dataclasses.replace(seq, maps=m)
+    frame = np.argwhere(seq.maps[schema.COLLISION].reshape(len(seq.world_state.frames), -1).any(axis=1))[0, 0]
+    touching = int(seq.maps[schema.INSTANCES][frame][seq.maps[schema.COLLISION][frame]][0])
+    frames = list(seq.world_state.frames)
+    frames[frame] = dataclasses.replace(frames[frame], objects=[
+        dataclasses.replace(o, contacts=[]) if o.id == touching else o for o in frames[frame].objects])
+    planted["collision pixels without a contact"] = dataclasses.replace(
+        seq, world_state=dataclasses.replace(seq.world_state, frames=frames))
+    for name, bad in planted.items():
+        assert [r.name for r in failing(check_sequence(bad))] == [name]

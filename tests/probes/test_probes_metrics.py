@@ -101,6 +101,14 @@ def test_zero_length_prediction_counts_90_degrees():
     assert M.gravity_angular_error(p, g, torch.ones(1, 1, 1, dtype=torch.bool)).item() == pytest.approx(90.0)
 
 
+def test_small_gravity_forces_are_not_zero_length():
+    """A 1 g object weighs 9.81e-3 N: its direction counts (only |g| <= ZERO_LENGTH_EPS = 1e-8 N is
+    undefined), so a prediction pointing up is 180 degrees off, not skipped."""
+    g = _vec_map({(0, 0): (0, 0, -9.81e-3), (0, 1): (0, 0, -2e-6)}, h=1, w=2)
+    p = _vec_map({(0, 0): (0, 0, 1.0), (0, 1): (0, 0, 1.0)}, h=1, w=2)
+    assert M.gravity_angular_error(p, g, torch.ones(1, 1, 2, dtype=torch.bool)).item() == pytest.approx(180.0)
+
+
 def test_per_image_then_over_images_averaging():
     # image 0: 1 object pixel with EPE 4; image 1: 3 pixels with EPE 1 -> per image (4 + 1)/2 = 2.5
     # (per-pixel pooling would give (4 + 3)/4 = 1.75)

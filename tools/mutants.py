@@ -1,0 +1,187 @@
+"""Catalogue of planted label bugs for ``tools/mutate.py`` (``make mutate``).
+
+Each mutant replaces one exact snippet of one file by a plausible bug: a sign flip, an off-by-one
+frame, the wrong camera, a pixel shift, wrong units, a threshold, a dropped case. ``tests`` are the
+default-run test files that should kill it, fastest first (pytest stops at the first failure); when
+empty, the defaults of its file (``DEFAULT_TESTS``) are used. ``equivalent`` holds the reason when a
+mutant cannot be told apart from the original by any test (it is then reported, not failed on).
+
+When code moves, update the snippet here: ``tools/mutate.py`` refuses to run a catalogue whose
+snippets no longer occur exactly once in their file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+LABEL_TESTS = "tests/data_gen/test_gen_labels.py"
+
+DEFAULT_TESTS: dict[str, tuple[str, ...]] = {
+    "probes/metrics.py": ("tests/probes/test_probes_metrics.py",),
+    "newtphys/consistency.py": ("tests/newtphys/test_core_consistency.py", LABEL_TESTS),
+    "data_gen/pipeline.py": (LABEL_TESTS,),
+    "data_gen/render/labels.py": ("tests/render/test_render_labels.py", LABEL_TESTS),
+    "data_gen/sim/recording.py": (
+        "tests/sim/test_sim_recording.py",
+        "tests/sim/test_sim_rigid_stress.py",
+        "tests/sim/test_sim_column.py",
+        "tests/sim/test_sim_soft_stress.py",
+        LABEL_TESTS,
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Mutant:
+    name: str
+    file: str
+    original: str
+    replacement: str
+    tests: tuple[str, ...] = ()
+    equivalent: str | None = None
+    """Why no test can kill it (None: it must be killed)."""
+
+    @property
+    def selected_tests(self) -> tuple[str, ...]:
+        return self.tests or DEFAULT_TESTS[self.file]
+
+
+PIPELINE = "data_gen/pipeline.py"
+CONSISTENCY = "newtphys/consistency.py"
+METRICS = "probes/metrics.py"
+LABELS = "data_gen/render/labels.py"
+RECORDING = "data_gen/sim/recording.py"
+
+MUTANTS: tuple[Mutant, ...] = (
+    # --- the five bugs of issue 16 ------------------------------------------------------------------
+    Mutant("collision_f1_tp_over_denominator", METRICS,
+           "return 2 * tp / denom",
+           "return tp / denom"),
+    Mutant("scene_flow_scaled_0_9", PIPELINE,
+           "geometry.rotate_vectors(w2c[t], disp_world)",
+           "geometry.rotate_vectors(w2c[t], 0.9 * disp_world)"),
+    Mutant("gravity_next_frames_camera", PIPELINE,
+           "geometry.rotate_vectors(w2c[t], weight)",
+           "geometry.rotate_vectors(w2c[min(t + 1, t_count - 1)], weight)"),
+    Mutant("collision_map_all_false", PIPELINE,
+           "maps[schema.COLLISION][t] = gather_labels(index, contact, False)",
+           "maps[schema.COLLISION][t] = np.zeros((h, w), bool)"),
+    Mutant("stress_sign_flipped", PIPELINE,
+           "stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]",
+           "stress[sl] = -tr.hydrostatic_stress_pa[t][nearest[k]]"),
+    # --- pipeline: frames, cameras, pixels, units ---------------------------------------------------
+    Mutant("scene_flow_next_frames_camera", PIPELINE,
+           "geometry.rotate_vectors(w2c[t], disp_world)",
+           "geometry.rotate_vectors(w2c[t + 1], disp_world)"),
+    Mutant("scene_flow_of_the_next_step", PIPELINE,
+           "positions[t + 1] - positions[t]",
+           "positions[min(t + 2, t_count - 1)] - positions[t + 1]"),
+    Mutant("collision_drops_scene_contacts", PIPELINE,
+           "contact[sl] = tr.contact_partner[t][nearest[k]] >= 0",
+           "contact[sl] = tr.contact_partner[t][nearest[k]] > 0"),
+    Mutant("collision_of_the_next_frame", PIPELINE,
+           "contact[sl] = tr.contact_partner[t][nearest[k]] >= 0",
+           "contact[sl] = tr.contact_partner[min(t + 1, t_count - 1)][nearest[k]] >= 0"),
+    Mutant("stress_in_kilopascals", PIPELINE,
+           "stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]",
+           "stress[sl] = 1e-3 * tr.hydrostatic_stress_pa[t][nearest[k]]"),
+    Mutant("stress_of_the_next_frame", PIPELINE,
+           "stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]",
+           "stress[sl] = tr.hydrostatic_stress_pa[min(t + 1, t_count - 1)][nearest[k]]"),
+    Mutant("labels_rendered_with_previous_camera", PIPELINE,
+           "index, depth = lab_r.render(g, K, w2c[t])",
+           "index, depth = lab_r.render(g, K, w2c[max(t - 1, 0)])"),
+    Mutant("depth_shifted_one_pixel", PIPELINE,
+           "maps[schema.DEPTH][t] = depth",
+           "maps[schema.DEPTH][t] = np.roll(depth, 1, axis=1)"),
+    Mutant("depth_in_millimetres", PIPELINE,
+           "maps[schema.DEPTH][t] = depth",
+           "maps[schema.DEPTH][t] = 1e3 * depth"),
+    Mutant("optical_flow_axes_swapped", PIPELINE,
+           "maps[schema.OPTICAL_FLOW][t] = np.nan_to_num(of).astype(np.float32)",
+           "maps[schema.OPTICAL_FLOW][t] = np.nan_to_num(of)[..., ::-1].astype(np.float32)"),
+    Mutant("instances_shifted_one_pixel", PIPELINE,
+           "maps[schema.INSTANCES][t] = ids",
+           "maps[schema.INSTANCES][t] = np.roll(ids, 1, axis=0)"),
+    Mutant("depth_at_splat_centres", PIPELINE,
+           'depth_mode="surface"',
+           'depth_mode="center"'),
+    Mutant("amodal_with_previous_camera", PIPELINE,
+           "render_group_masks(g, K, w2c[t], instance, object_ids)",
+           "render_group_masks(g, K, w2c[max(t - 1, 0)], instance, object_ids)"),
+    Mutant("amodal_materials_of_another_object", PIPELINE,
+           "maps[schema.AMODAL_MATERIALS][t, k][masks[k]] = o.material_id",
+           "maps[schema.AMODAL_MATERIALS][t, k][masks[k]] = objects[-1 - k].material_id"),
+    Mutant("world_state_contacts_skip_the_scene", PIPELINE,
+           "for p in np.unique(tr.contact_partner[t]) if p >= 0}",
+           "for p in np.unique(tr.contact_partner[t]) if p > 0}"),
+    Mutant("collision_drops_object_contacts", PIPELINE,
+           "contact[sl] = tr.contact_partner[t][nearest[k]] >= 0",
+           "contact[sl] = tr.contact_partner[t][nearest[k]] == 0"),
+    Mutant("scene_flow_gathered_with_next_frames_index", PIPELINE,
+           "gather_labels(index_all[t], positions[t + 1] - positions[t])",
+           "gather_labels(index_all[t + 1], positions[t + 1] - positions[t])"),
+    Mutant("optical_flow_from_next_frames_depth", PIPELINE,
+           "of = optical_flow_from_scene_flow(maps[schema.DEPTH][t].astype(np.float64)",
+           "of = optical_flow_from_scene_flow(maps[schema.DEPTH][t + 1].astype(np.float64)"),
+    # --- consistency (also what the pipeline's optical flow is computed with) -----------------------
+    Mutant("optical_flow_projected_with_current_camera", CONSISTENCY,
+           "geometry.transform_points(w2c_next, moved)",
+           "geometry.transform_points(w2c_t, moved)"),
+    Mutant("optical_flow_pixel_centres_at_integers", CONSISTENCY,
+           "return uv_next - geometry.pixel_centers(*depth.shape)",
+           "return uv_next - (geometry.pixel_centers(*depth.shape) - 0.5)"),
+    Mutant("gravity_check_uses_next_frames_camera", CONSISTENCY,
+           "geometry.rotate_vectors(seq.world_to_camera[t], g)",
+           "geometry.rotate_vectors(seq.world_to_camera[min(t + 1, ws.num_frames - 1)], g)"),
+    Mutant("collision_check_blind", CONSISTENCY,
+           "in_contact[o.id] = bool(o.contacts)",
+           "in_contact[o.id] = True"),
+    Mutant("validator_optical_flow_tolerance_5px", CONSISTENCY,
+           '"optical_flow vs projected scene_flow": 0.05,',
+           '"optical_flow vs projected scene_flow": 5.0,'),
+    # --- label rasterizer ---------------------------------------------------------------------------
+    Mutant("label_cover_alpha_0_1", LABELS,
+           "LABEL_COVER_ALPHA = 0.5",
+           "LABEL_COVER_ALPHA = 0.1"),
+    Mutant("coverage_rows_half_pixel_up", LABELS,
+           "dy = float(y) + 0.5 - m[1]",
+           "dy = float(y) - m[1]"),
+    Mutant("surface_depth_rays_through_pixel_corners", LABELS,
+           "d = wp.vec3((float(x) + 0.5 - rays.cx) / rays.fx, (float(y) + 0.5 - rays.cy) / rays.fy, 1.0)",
+           "d = wp.vec3((float(x) - rays.cx) / rays.fx, (float(y) - rays.cy) / rays.fy, 1.0)"),
+    Mutant("gather_labels_ignores_background", LABELS,
+           "out[~hit] = np.asarray(background, dtype=vals_np.dtype)",
+           "pass"),
+    # --- simulation record --------------------------------------------------------------------------
+    Mutant("rigid_stress_sign_flipped", RECORDING,
+           "return (virial + spin) / (3.0 * volume_m3)",
+           "return -(virial + spin) / (3.0 * volume_m3)"),
+    Mutant("soft_stress_sign_flipped", RECORDING,
+           "stress = model.cauchy_hydrostatic(q).numpy()",
+           "stress = -model.cauchy_hydrostatic(q).numpy()"),
+    Mutant("contact_partners_not_recorded", RECORDING,
+           '"contact_partner": partner.numpy().copy()',
+           '"contact_partner": np.full_like(partner.numpy(), -1)'),
+    Mutant("contact_event_frame_rounded_down", RECORDING,
+           '"frame": -(-onset // self.substeps)',
+           '"frame": onset // self.substeps'),
+    Mutant("orientation_recorded_inverted", RECORDING,
+           "rot = u @ torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=DTYPE)) @ vt",
+           "rot = (u @ torch.diag(torch.tensor([1.0, 1.0, float(d)], dtype=DTYPE)) @ vt).T"),
+    Mutant("com_not_mass_weighted", RECORDING,
+           "com = (mp[:, None] * xp).sum(0) / model.mass_kg",
+           "com = xp.mean(0)",
+           equivalent="every inertia particle has the same mass (ReducedObject gives mass points rho V / P "
+                      "each, and the Simulator always passes mass points), so both means agree to round-off"),
+    # --- metrics ------------------------------------------------------------------------------------
+    Mutant("f1_false_negatives_off_the_mask", METRICS,
+           "fn = (~p & t & m).sum()",
+           "fn = (~p & target.bool()).sum()"),
+    Mutant("gravity_magnitude_error_signed", METRICS,
+           "target.to(torch.float64).norm(dim=1)).abs()",
+           "target.to(torch.float64).norm(dim=1))"),
+    Mutant("zero_length_threshold_raised", METRICS,
+           "ZERO_LENGTH_EPS: float = 1e-8",
+           "ZERO_LENGTH_EPS: float = 1e-2"),
+)
