@@ -54,7 +54,7 @@ vertical vector unchanged."""
 def _placement(object_id: int, asset: str, size_m: float, material: str, young_modulus_pa: float,
                poisson_ratio: float, density_kg_m3: float, position_m: tuple[float, float, float],
                velocity_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0), motion: str = "drop"):
-    from data_gen.scene import ObjectPlacement
+    from data_gen.scenario import ObjectPlacement
 
     return ObjectPlacement(
         object_id=object_id, asset=asset, size_m=size_m, material=material, young_modulus_pa=young_modulus_pa,
@@ -75,7 +75,7 @@ def label_scenario(camera_kind: str):
     Objects 1 and 4 differ in material and class from each other and from the books.
     """
     from data_gen.cameras import HANDHELD_TERMS, CameraPathSpec
-    from data_gen.scene import Scenario
+    from data_gen.scenario import Scenario
 
     objects = (
         _placement(1, "wooden_block", 0.16, "wood", 1.0e10, 0.35, 600.0, (0.0, 0.0, 0.024 + 0.04)),
@@ -109,12 +109,13 @@ def label_scenario(camera_kind: str):
 def label_sequences(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """{camera kind: SequenceArrays} of :func:`label_scenario`, generated at draft quality by the pipeline,
     written to a shard and read back (what a user of the data sees). About 10 s on 2 CPU cores."""
-    from data_gen.pipeline import RenderSettings, generate_sequence
+    from data_gen.configs import render_settings
+    from data_gen.pipeline import generate_sequence
     from data_gen.sim.presets import load_preset
     from newtphys.shards import ShardReader, ShardWriter
 
     out = tmp_path_factory.mktemp("labels")
-    settings = RenderSettings(object_gaussians=1500, interior_points=600, scene_spacing_m=0.04)
+    settings = render_settings(object_gaussians=1500, interior_points=600, scene_spacing_m=0.04)
     with ShardWriter(out, split="train", shard_index=0) as writer:
         for kind in LABEL_CAMERAS:
             seq, _ = generate_sequence(label_scenario(kind), load_preset("draft"), settings)

@@ -22,6 +22,7 @@ import pytest
 
 from newtphys import geometry, schema
 from newtphys.consistency import TOLERANCES, check_sequence
+from newtphys.rotations import quat_to_matrix
 from newtphys.shards import SequenceArrays
 
 # Tolerances, with what they are measured against (draft quality, 64 x 80 px, tests/data_gen/conftest.py).
@@ -69,7 +70,7 @@ def _world_points(seq: SequenceArrays, depth: np.ndarray, t: int) -> np.ndarray:
 def _pose(seq: SequenceArrays, t: int, object_id: int) -> tuple[np.ndarray, np.ndarray]:
     fo = seq.world_state.frames[t].objects[object_id - 1]
     assert fo.id == object_id
-    return np.asarray(fo.position, np.float64), geometry.quat_to_matrix(fo.orientation)
+    return np.asarray(fo.position, np.float64), quat_to_matrix(fo.orientation)
 
 
 def _rigidly_moved(seq: SequenceArrays, t: int, object_id: int, points: np.ndarray) -> np.ndarray:

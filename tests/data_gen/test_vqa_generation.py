@@ -263,3 +263,32 @@ def test_contact_sheet_draws_the_sampled_items(question_set: Path, tmp_path: Pat
     assert cli_main(["view-vqa", str(question_set), "--out", str(tmp_path / "sheet.png"), "--count", "6"]) == 0
     with PILImage.open(tmp_path / "sheet.png") as im:
         assert im.size[1] > 6 * 150  # one row per item
+
+
+def test_the_answer_letter_points_at_the_right_option(push_data: Path, question_set: Path) -> None:
+    """Numeric answers: the option under the letter reads the value; name answers: the answered object's
+    display name; single and multi versions of a question show the same options and end on the same frame."""
+    answers = vs.read_answers(question_set)
+    items = vs.read_items(question_set)
+    checked = Counter()
+    for item in items:
+        answer = answers[item.idx]
+        option = item.options[vs.LETTERS.index(answer.answer)]
+        if answer.unit in ("m", "kg", "m/s", "m/s^2") and isinstance(answer.value, float):
+            decimals = len(option.split()[0].partition(".")[2])
+            assert float(option.split()[0]) == pytest.approx(answer.value, abs=0.51 * 10.0**-decimals), item.idx
+            checked["numeric"] += 1
+        elif item.question_id in ("F_MASS_HEAVIEST_OBJECT", "F_MASS_LIGHTEST_OBJECT", "F_CLOSEST_OBJECT_CAMERA",
+                                  "F_SIZE_OBJECT_BIGGER", "F_PHYSICS_PROPERTY_YOUNG_MODULUS_HIGHEST"):
+            with ShardReader(push_data / item.shard) as r:
+                ws = r.world_state(item.sequence_id)
+            assert option == ws.object_by_id(int(answer.value)).extra["display_name"], item.idx
+            checked["name"] += 1
+    assert checked["numeric"] > 20 and checked["name"] > 0, checked
+    by_pair: dict[str, list[vs.QuestionItem]] = {}
+    for item in items:
+        by_pair.setdefault(item.pair, []).append(item)
+    for pair in (p for p in by_pair.values() if len(p) == 2):
+        single, multi = sorted(pair, key=lambda i: i.mode != "single")
+        assert single.options == multi.options, single.idx
+        assert multi.frames[-1] == single.frames[-1], single.idx  # the multi window ends on the question's frame

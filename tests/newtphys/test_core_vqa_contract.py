@@ -73,6 +73,21 @@ def test_catalogue_has_every_category_and_the_papers_exclusions() -> None:
     assert vs.question_spec("CF_F_KINEMATICS_SPEED_OBJECT").sub_category == "kinematics"
 
 
+@pytest.mark.parametrize(
+    ("question_id", "category", "sub_category"),
+    [("F_MASS_OBJECT", "material_understanding", "mass"), ("F_KINEMATICS_SPEED_OBJECT", "mechanics", "kinematics"),
+     ("F_COLLISION_OBJECT_OBJECT_FRAME_MULTI", "mechanics", "collision"),
+     ("F_LAYOUT_POSITION_OBJECT_OBJECT", "spatial_reasoning", "layout"),
+     ("F_VIEWPOINT_CAMERA_ANGLE", "view_point", "camera_characteristics"),
+     ("F_CAMERA_MOTION_DIRECTION", "temporal", "camera_motion"),
+     ("F_PERSISTENCE_TOTAL_COUNT", "persistence", "object_count"),
+     ("F_PHYSICS_PROPERTY_POISSON_HIGH_LEVEL", "material_understanding", "poisson_ratio")],
+)  # fmt: skip
+def test_aggregation_levels_of_known_ids(question_id: str, category: str, sub_category: str) -> None:
+    spec = vs.question_spec(question_id)
+    assert (spec.category, spec.sub_category) == (category, sub_category)
+
+
 BREAKAGES = {
     "missing field": (lambda i, a: i[0].pop("question"), "q0/question: missing field"),
     "wrong type": (lambda i, a: i[0].update(frames="12"), "q0/frames: must be a non-empty list"),
