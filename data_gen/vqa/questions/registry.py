@@ -48,7 +48,7 @@ class Context:
         return tuple(chosen)
 
     def library_names_not_in_scene(self) -> list[str]:
-        from data_gen.assets.library import list_objects
+        from data_gen.assets.registry import list_objects
 
         present = {o.name for o in self.view.world_state.objects}
         present_words = {self.view.name(o.id) for o in self.view.world_state.objects} | {words(n) for n in present}
