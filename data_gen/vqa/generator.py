@@ -24,7 +24,15 @@ from PIL import Image
 from tqdm import tqdm
 
 from data_gen.vqa.questions import REGISTRY, Context
-from data_gen.vqa.rules import MULTI_PREFIX, NotAnswerable, Question, integer_window, mention, multi_window, seed_of
+from data_gen.vqa.rules import (
+    MULTI_PREFIX,
+    NotAnswerable,
+    Question,
+    integer_window,
+    mention,
+    multi_window,
+    seed_of,
+)
 from data_gen.vqa.variants import REGISTRY as VARIANTS
 from data_gen.vqa.variants import CounterfactualSettings, VariantInputs
 from data_gen.vqa.view import SequenceView
@@ -35,6 +43,8 @@ from newtphys.shards import ShardReader, list_shards
 log = logging.getLogger(__name__)
 
 PARTS_DIR = "parts"
+TWINS_DIR = "counterfactuals"
+"""World states of the simulated counterfactual twins (provenance, and reused when a run is resumed)."""
 
 
 @dataclass(frozen=True)
@@ -201,7 +211,7 @@ def variant_records(view: SequenceView, records: list[dict[str, Any]], cfg: VqaC
     out: list[dict[str, Any]] = []
     images: dict[str, np.ndarray] = {}
     skips: Counter = Counter()
-    inputs = VariantInputs(view, cfg.seed, cfg.counterfactual)
+    inputs = VariantInputs(view, cfg.seed, cfg.counterfactual, cfg.set_dir / TWINS_DIR)
     for name in cfg.variants:
         if name == vs.BASE_VARIANT:
             continue

@@ -21,10 +21,13 @@ always one of the distractors: a model that ignores the premise picks it.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,6 +39,7 @@ from data_gen.vqa.view import SequenceView, box_distance
 from newtphys import schema
 from newtphys import vqa_schema as vs
 from newtphys.shards import ShardReader
+from newtphys.world_state import WorldState
 
 log = logging.getLogger(__name__)
 
@@ -173,22 +177,34 @@ def shift_vector(view: SequenceView, scenario, object_id: int, distance_m: float
     raise NotAnswerable("shift_blocked")
 
 
-def simulate_twin(view: SequenceView, scenario, gen, change: str, object_id: int | None, amount: Any,
-                  device: str) -> SequenceView:
+def twin_view(view: SequenceView, scenario, gen, change: str, object_id: int | None, amount: Any, device: str,
+              twin_dir: Path) -> SequenceView:
     """The counterfactual twin (``counterfactual(scenario, change, object_id, amount)``) simulated and rendered
-    with the shard's quality preset on ``device``; NotAnswerable when the pipeline rejects it."""
+    with the shard's quality preset on ``device``, its world state kept in ``twin_dir`` (and read from there
+    when the same change was simulated before); NotAnswerable when the pipeline rejects it. The twin shares
+    the factual camera path, so the view uses the factual intrinsics and extrinsics."""
     from data_gen.pipeline import SequenceRejected, generate_sequence
     from data_gen.scenario import ScenarioError, counterfactual
 
     twin = counterfactual(scenario, change, amount=amount, **({} if object_id is None else {"object_id": object_id}))
-    settings = dataclasses.replace(gen.render, device=device, min_visible_objects=0)  # the twin is never shown
-    t0 = time.perf_counter()
-    try:
-        seq, _ = generate_sequence(twin, gen.quality, settings, gen.skinning_cache_dir)
-    except (SequenceRejected, ScenarioError) as e:
-        raise NotAnswerable(f"twin_rejected_{getattr(e, 'reason', 'scenario')}") from None
-    log.info("%s: %s twin simulated in %.1f s", view.sequence_id, change, time.perf_counter() - t0)
-    return SequenceView.from_arrays(seq.world_state, seq.K, seq.world_to_camera, view.shard, view.shard_relative)
+    record_path = twin_dir / f"{twin.sequence_id}.json"
+    how = {"change": change, "amount": amount, "object": object_id}
+    if record_path.is_file() and (kept := json.loads(record_path.read_text()))["counterfactual"] == how:
+        ws = WorldState.from_dict(kept["world_state"])
+    else:
+        settings = dataclasses.replace(gen.render, device=device, min_visible_objects=0)  # the twin is never shown
+        t0 = time.perf_counter()
+        try:
+            seq, _ = generate_sequence(twin, gen.quality, settings, gen.skinning_cache_dir)
+        except (SequenceRejected, ScenarioError) as e:
+            raise NotAnswerable(f"twin_rejected_{getattr(e, 'reason', 'scenario')}") from None
+        log.info("%s: %s twin simulated in %.1f s", view.sequence_id, change, time.perf_counter() - t0)
+        ws = seq.world_state
+        twin_dir.mkdir(parents=True, exist_ok=True)
+        tmp = record_path.with_name(record_path.name + f".tmp{os.getpid()}")
+        tmp.write_text(json.dumps({"counterfactual": how, "world_state": ws.to_dict()}, sort_keys=True))
+        tmp.replace(record_path)
+    return SequenceView.from_arrays(ws, view.K, view.world_to_camera, view.shard, view.shard_relative)
 
 
 # -- wording ----------------------------------------------------------------------------------------------
@@ -256,7 +272,7 @@ def _make(name: str, change: str) -> None:
                 amount = vector.tolist()
             else:
                 amount = settings.resize_factor
-            twin = simulate_twin(view, scenario, gen, change, target, amount, settings.device)
+            twin = twin_view(view, scenario, gen, change, target, amount, settings.device, inputs.twin_dir)
         except NotAnswerable as e:
             out.skips[e.reason] += len(candidates)
             return out

@@ -24,8 +24,8 @@ LEVEL_TEXTS: dict[str, tuple[str, str, str, str, str]] = {
         "Which thing would be the hardest to squish with your hands?",
         "If you pushed hard on each object, which one would bend or squash the least?",
         "Which object is made of the stiffest material, the one with the highest Young's modulus?",
-        "Which object has the highest Young's modulus, i.e. needs the most stress per unit of strain when "
-        "stretched or compressed?",
+        ("Which object has the highest Young's modulus, i.e. needs the most stress per unit of strain when "
+         "stretched or compressed?"),
         "Assuming linear isotropic elasticity, which object's material has the largest elastic modulus E = σ/ε?",
     ),
     "F_PHYSICS_PROPERTY_YOUNG_MODULUS_OBJECT_SIMILAR": (
@@ -40,17 +40,17 @@ LEVEL_TEXTS: dict[str, tuple[str, str, str, str, str]] = {
         "Pressed down from above, which object would spread out sideways the most?",
         "Which object's material has the largest Poisson's ratio, the sideways stretch per unit of squeeze?",
         "Which object has the highest Poisson's ratio ν, the negative ratio of transverse to axial strain?",
-        "Under small uniaxial compression, which object's material shows the largest ratio of lateral to axial "
-        "strain magnitude (Poisson's ratio ν, at most 0.5 for an incompressible solid)?",
+        ("Under small uniaxial compression, which object's material shows the largest ratio of lateral to axial "
+         "strain magnitude (Poisson's ratio ν, at most 0.5 for an incompressible solid)?"),
     ),
     "F_PHYSICS_PROPERTY_POISSON_RATIO_OBJECT_SIMILAR": (
-        "If you squished the {name} and the other things from the top, which one would bulge at the sides about "
-        "as much as the {name}?",
+        ("If you squished the {name} and the other things from the top, which one would bulge at the sides "
+         "about as much as the {name}?"),
         "Squeezed from above, which object would spread sideways about as much as the {name}?",
         "Which object has a Poisson's ratio close to that of the {name}?",
         "Which object's Poisson's ratio differs from the {name}'s by less than 0.02?",
-        "Which object's material has a Poisson's ratio ν within 0.02 of the {name}'s, i.e. nearly the same ratio "
-        "of lateral to axial strain?",
+        ("Which object's material has a Poisson's ratio ν within 0.02 of the {name}'s, i.e. nearly the same "
+         "ratio of lateral to axial strain?"),
     ),
 }
 

@@ -7,7 +7,14 @@ from typing import Any
 
 import numpy as np
 
-from data_gen.vqa.variants.registry import VariantInputs, VariantOutput, derive, named_once, variant, variant_image_path
+from data_gen.vqa.variants.registry import (
+    VariantInputs,
+    VariantOutput,
+    derive,
+    named_once,
+    variant,
+    variant_image_path,
+)
 from data_gen.vqa.variants.roi import draw_disc
 
 

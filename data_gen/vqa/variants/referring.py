@@ -12,7 +12,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from data_gen.vqa.variants.registry import (
-    VariantInputs, VariantOutput, derive, named_once, refer, variant, variant_image_path,
+    VariantInputs,
+    VariantOutput,
+    derive,
+    named_once,
+    refer,
+    variant,
+    variant_image_path,
 )  # fmt: skip
 from data_gen.vqa.variants.roi import draw_ring, grid_location
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -56,10 +57,12 @@ class VariantInputs:
     """One sequence's view, the run's seed and settings, and its frames read once (RGB, instance ids, amodal
     masks) for every variant that draws on them."""
 
-    def __init__(self, view: SequenceView, seed: int, counterfactual: CounterfactualSettings) -> None:
+    def __init__(self, view: SequenceView, seed: int, counterfactual: CounterfactualSettings, twin_dir: Path) -> None:
         self.view = view
         self.seed = seed
         self.counterfactual = counterfactual
+        self.twin_dir = twin_dir
+        """Where counterfactual twins' world states are kept (``<set>/counterfactuals``)."""
         self._rgb: dict[int, np.ndarray] = {}
         self._instances: dict[int, np.ndarray] = {}
         self._amodal: dict[int, np.ndarray] = {}
