@@ -21,6 +21,10 @@ Usage:
         [--lmms-python /tmp/lmms_venv/bin/python]
 (or NEWTPHYS_VLMEVALKIT, NEWTPHYS_VLMEVALKIT_PYTHON, NEWTPHYS_LMMS_PYTHON). A harness that is not given or
 not found is skipped with a message saying what to provide; the exit status is 1 when a check fails.
+
+Environments as last set up (Python 3.11): ``pip install lmms-eval`` (0.7.3) then ``pip install "filelock<4"``
+(lmms-eval imports ``filelock._api``, which filelock 4 removed); VLMEvalKit: ``pip install -r
+requirements.txt`` of the checkout plus ``rouge_score`` (imported by its dataset package, not listed).
 """
 
 from __future__ import annotations
