@@ -14,7 +14,8 @@ from data_gen.assets.registry import (
     list_scene_layouts,
 )
 from data_gen.assets.scene_layout import PlacementRegion
-from data_gen.scenario import ScenarioConfig, ScenarioError
+from data_gen.configs import scenario_config
+from data_gen.scenario import ScenarioError
 
 
 def test_at_least_five_layouts():
@@ -78,15 +79,19 @@ def test_bad_region_and_unknown_scene():
         get_scene_layout("moon_base")
 
 
-def test_registry_resolves_names_and_references_and_scenario_configs_accept_them():
+def test_registry_resolves_names_and_references_and_scenario_configs_accept_them(tmp_path):
     assert is_scene_layout_name("ramp") and is_scene_layout_name("ply:/data/room.ply?up=y")
     assert not is_scene_layout_name("moon_base") and not is_scene_layout_name("file:/data/room.obj")
     assert is_object_name("mug") and is_object_name("file:/m.obj") and is_object_name("ply:/t.ply")
     assert not is_object_name("unicorn") and not is_object_name("obj:/m.obj")
     with pytest.raises(KeyError, match=r"scheme in \['file', 'ply'\]"):
         get_object("obj:/m.obj")
-    # references pass the config check (they are opened when a scenario is drawn), unknown names do not
-    cfg = ScenarioConfig.from_mapping({"scenes": ["table", "ply:/data/room.ply"], "objects": ["mug", "file:/m.obj"]})
-    assert cfg.scenes == ("table", "ply:/data/room.ply")
+    # references to existing files pass the config check (they are opened when a scenario is drawn), unknown
+    # names do not
+    (tmp_path / "room.ply").touch()
+    (tmp_path / "m.obj").touch()
+    scene, mesh = f"ply:{tmp_path / 'room.ply'}", f"file:{tmp_path / 'm.obj'}"
+    cfg = scenario_config("drop", scenes=["table", scene], objects=["mug", mesh])
+    assert cfg.scenes == ("table", scene) and cfg.objects == ("mug", mesh)
     with pytest.raises(ScenarioError, match="unknown scene 'moon_base'"):
-        ScenarioConfig.from_mapping({"scenes": ["moon_base"]})
+        scenario_config("drop", scenes=["moon_base"])
