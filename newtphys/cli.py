@@ -1,4 +1,4 @@
-"""``python -m newtphys {validate,info,view,stats,validate-vqa}``: tools over shards and question sets that
+"""``python -m newtphys {validate,info,view,stats,validate-vqa,view-vqa,subset-vqa,export-vqa}``: tools over shards and question sets that
 need only the core."""
 
 from __future__ import annotations
@@ -143,6 +143,15 @@ def cmd_subset_vqa(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_vqa(args: argparse.Namespace) -> int:
+    from newtphys.vqa_export import export
+
+    path = export(_question_sets_under(Path(args.path))[0], args.format, args.out, args.name, args.image_mode,
+                  None if args.mode == "all" else args.mode)  # fmt: skip
+    print(f"wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m newtphys", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -179,6 +188,16 @@ def build_parser() -> argparse.ArgumentParser:
     sb.add_argument("--size", type=int, default=15000)
     sb.add_argument("--seed", type=int, default=42)
     sb.set_defaults(func=cmd_subset_vqa)
+    ex = sub.add_parser("export-vqa", help="a question set as a VLMEvalKit TSV or an lmms-eval task directory")
+    ex.add_argument("path", help="a question-set directory or a VQA root (its first split)")
+    ex.add_argument("--format", required=True, choices=["vlmevalkit", "lmms-eval"])
+    ex.add_argument("--out", required=True, help="output directory ($LMUData for VLMEvalKit; the task dir for lmms-eval)")
+    ex.add_argument("--name", default=None, help="dataset / task name (default: newtphys_<split>)")
+    ex.add_argument("--image-mode", default="base64", choices=["base64", "path"],
+                    help="VLMEvalKit: images inline as base64 (default) or as absolute paths (image_path)")
+    ex.add_argument("--mode", default="all", choices=["all", "single", "multi"],
+                    help="single: only one-image items (for single-image models)")
+    ex.set_defaults(func=cmd_export_vqa)
     return p
 
 

@@ -133,6 +133,33 @@ def _specs() -> dict[str, QuestionSpec]:
 
 
 QUESTION_SPECS: dict[str, QuestionSpec] = _specs()
+
+VARIANTS: dict[str, str] = {
+    "base": "the question as generated: the object's name, unchanged frames",
+    # name / red circle / image location: the seven combinations are base (name only) and these six
+    "roi_circle": "name + a red circle around the named object on the question images; text '(circled in red)'",
+    "location": "name + 'located at the top-left of the image' (3 x 3 grid of the question's last frame)",
+    "roi_circle_location": "name + red circle + location",
+    "roi_only": "red circle, no name: 'the object circled in red'",
+    "location_only": "location, no name: 'the object located at the top-left of the image'",
+    "roi_location_only": "red circle + location, no name",
+    "roi_masked": "the named object covered by a filled black disc on the question images (text unchanged)",
+    "black_image": "every image (question and option images) all black (text unchanged)",
+    "cue_duration": "multi-frame kinematics items + 'The images span 3.52 seconds.'",
+    "cue_mass_exact": "items naming one object (not mass questions) + 'The <name> has a mass of 2.35 kg.'",
+    "cue_mass_approx": "as cue_mass_exact with the mass rounded to 0.5 kg ('about 2.5 kg')",
+    "level_child": "density-relative, Young's-modulus and Poisson-ratio questions (multi) worded for a child",
+    "level_teen": "... worded for a teenager",
+    "level_undergrad": "... worded for an undergraduate",
+    "level_graduate": "... worded for a graduate student",
+    "level_expert": "... worded for a physicist",
+    "cf_gravity": "CF_<id>: factual images, answer from the simulated twin with gravity x 0.1",
+    "cf_shift": "CF_<id>: factual images, answer from the twin with one object started 0.15 m to the side",
+    "cf_resize": "CF_<id>: factual images, answer from the twin with one object at half size",
+}
+"""Variant name -> what it changes (docs/vqa_contract.md). Every item names its variant; a variant's items
+share the letter order of the base item they derive from, except counterfactuals (own ids, own answers)."""
+COUNTERFACTUAL_VARIANT_PREFIX = "cf_"
 COUNTERFACTUAL_PREFIX = "CF_"
 """Counterfactual question ids are ``CF_<QUESTION_ID>`` and aggregate like their factual id."""
 

@@ -58,6 +58,13 @@ class _Checker:
                             f"{d['category']}/{d['sub_category']}", idx, "category")  # fmt: skip
             if d["mode"] not in spec.modes:
                 self.add(f, f"mode {d['mode']!r} not one of {list(spec.modes)} for {d['question_id']}", idx, "mode")
+        if d["variant"] not in vs.VARIANTS:
+            self.add(f, f"unknown variant {d['variant']!r}; valid: {list(vs.VARIANTS)}", idx, "variant")
+        elif d["variant"].startswith(vs.COUNTERFACTUAL_VARIANT_PREFIX) != d["question_id"].startswith(
+                vs.COUNTERFACTUAL_PREFIX):
+            self.add(f, f"counterfactual variants ({vs.COUNTERFACTUAL_VARIANT_PREFIX}*) and only they ask "
+                        f"{vs.COUNTERFACTUAL_PREFIX}<id> questions: variant {d['variant']!r} with question_id "
+                        f"{d['question_id']!r}", idx, "variant")  # fmt: skip
         if d["mode"] not in vs.MODES:
             self.add(f, f"mode must be one of {list(vs.MODES)}, got {d['mode']!r}", idx, "mode")
         options = d["options"]

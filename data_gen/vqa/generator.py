@@ -24,7 +24,17 @@ from PIL import Image
 from tqdm import tqdm
 
 from data_gen.vqa.questions import REGISTRY, Context
-from data_gen.vqa.rules import NotAnswerable, Question, integer_window, multi_window, seed_of
+from data_gen.vqa.rules import (
+    MULTI_PREFIX,
+    NotAnswerable,
+    Question,
+    integer_window,
+    mention,
+    multi_window,
+    seed_of,
+)
+from data_gen.vqa.variants import REGISTRY as VARIANTS
+from data_gen.vqa.variants import CounterfactualSettings, VariantInputs
 from data_gen.vqa.view import SequenceView
 from newtphys import __version__
 from newtphys import vqa_schema as vs
@@ -33,7 +43,8 @@ from newtphys.shards import ShardReader, list_shards
 log = logging.getLogger(__name__)
 
 PARTS_DIR = "parts"
-MULTI_PREFIX = "Consider all the frames shown, in order; answer for the last one. "
+TWINS_DIR = "counterfactuals"
+"""World states of the simulated counterfactual twins (provenance, and reused when a run is resumed)."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +63,10 @@ class VqaConfig:
     question_ids: tuple[str, ...] | None
     """None: the whole catalogue."""
     workers: int
+    variants: tuple[str, ...]
+    """Item variants to write (``newtphys.vqa_schema.VARIANTS``); ``base`` is the questions as generated."""
+    counterfactual: CounterfactualSettings
+    """Read only when ``variants`` holds a ``cf_*`` variant."""
     progress: bool = True
     config_yaml: str = ""
 
@@ -70,11 +85,19 @@ class VqaConfig:
                          ("workers", 0), ("seed", 0)):  # fmt: skip
             if int(cfg[key]) < low:
                 raise ValueError(f"generate_vqa config: {key} must be >= {low}, got {cfg[key]}")
+        variants = cfg["variants"]
+        if isinstance(variants, str) or not variants or len(set(variants)) != len(variants):
+            raise ValueError(f"generate_vqa config: variants must be a non-empty list without repeats, got {variants!r}")
+        bad = sorted(set(variants) - set(vs.VARIANTS))
+        if bad:
+            raise ValueError(f"generate_vqa config: unknown variants {bad}; valid: {list(vs.VARIANTS)}")
         return VqaConfig(
             data_dir=Path(cfg["data_dir"]), split=str(cfg["split"]), out_dir=Path(cfg["out_dir"]), seed=int(cfg["seed"]),
             frames_per_sequence=int(cfg["frames_per_sequence"]), exclude_last_frames=int(cfg["exclude_last_frames"]),
             min_visible_objects=int(cfg["min_visible_objects"]), question_ids=None if ids is None else tuple(ids),
-            workers=int(cfg["workers"]), progress=bool(cfg.get("progress", True)), config_yaml=config_yaml,
+            workers=int(cfg["workers"]), variants=tuple(str(v) for v in variants),
+            counterfactual=CounterfactualSettings.from_mapping(dict(cfg["counterfactual"])),
+            progress=bool(cfg.get("progress", True)), config_yaml=config_yaml,
         )  # fmt: skip
 
     @property
@@ -95,6 +118,8 @@ class VqaReport:
     skipped_sequences: int = 0
     items: int = 0
     skips: Counter = field(default_factory=Counter)
+    variant_skips: Counter = field(default_factory=Counter)
+    """(variant, reason) -> base records the variant could not be made from."""
 
     def summary(self) -> str:
         return (f"{self.items} items from {self.sequences} sequences ({self.skipped_sequences} already done); "
@@ -169,8 +194,42 @@ def sequence_questions(view: SequenceView, cfg: VqaConfig) -> tuple[list[dict[st
                     "question": text, "correct": q.correct, "distractors": list(q.distractors), "value": q.value,
                     "unit": q.unit, "objects": [int(o) for o in q.objects], "meta": meta,
                     "order_key": seed_of(cfg.seed, view.sequence_id, qid, q.key, shown_single[-1]),
+                    "named": _named(view, q), "option_frames": list(q.option_frames or ()),
                 })  # fmt: skip
     return records, skips, frames_needed
+
+
+def _named(view: SequenceView, q: Question) -> list[int]:
+    """The question's objects whose name its text mentions (the variants' "asked object")."""
+    return [int(o) for o in q.objects if view.name(o) and mention(view.name(o)).search(q.text)]
+
+
+def variant_records(view: SequenceView, records: list[dict[str, Any]], cfg: VqaConfig
+                    ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray], Counter]:  # fmt: skip
+    """The records of every configured variant but ``base``, the images they show (path -> RGB) and the
+    variants' skips per (variant, reason)."""
+    out: list[dict[str, Any]] = []
+    images: dict[str, np.ndarray] = {}
+    skips: Counter = Counter()
+    inputs = VariantInputs(view, cfg.seed, cfg.counterfactual, cfg.set_dir / TWINS_DIR)
+    for name in cfg.variants:
+        if name == vs.BASE_VARIANT:
+            continue
+        made = VARIANTS[name](inputs, records)
+        out += made.records
+        images.update(made.images)
+        for reason, n in made.skips.items():
+            skips[(name, reason)] += n
+    return out, images, skips
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    if path.is_file():
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}.png")
+    Image.fromarray(rgb).save(tmp, optimize=False)
+    tmp.replace(path)
 
 
 def _atomic_json(path: Path, obj: Any) -> None:
@@ -182,20 +241,20 @@ def _atomic_json(path: Path, obj: Any) -> None:
 def _run_sequence(args: tuple[SequenceJob, VqaConfig]) -> tuple[str, bool]:
     job, cfg = args
     part = cfg.set_dir / PARTS_DIR / f"{job.sequence_id}.json"
-    if part.is_file():
-        return job.sequence_id, False
+    if part.is_file() and json.loads(part.read_text()).get("variants") == list(cfg.variants):
+        return job.sequence_id, False  # done with the same variants (other variants: made again)
     view = SequenceView(Path(job.shard), job.sequence_id, job.shard_relative)
     records, skips, frames = sequence_questions(view, cfg)
+    derived, images, variant_skips = variant_records(view, records, cfg)
     if frames:
         ordered = sorted(frames)
         for t, rgb in zip(ordered, view.read_rgb(ordered)):
-            path = cfg.set_dir / _image_path(job.sequence_id, t)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            if not path.is_file():
-                tmp = path.with_name(path.name + f".tmp{os.getpid()}.png")
-                Image.fromarray(rgb).save(tmp, optimize=False)
-                tmp.replace(path)
-    _atomic_json(part, {"records": records, "skips": [[q, r, n] for (q, r), n in sorted(skips.items())]})
+            _write_png(cfg.set_dir / _image_path(job.sequence_id, t), rgb)
+    for path, rgb in sorted(images.items()):
+        _write_png(cfg.set_dir / path, rgb)
+    _atomic_json(part, {"records": records + derived, "variants": list(cfg.variants),
+                        "skips": [[q, r, n] for (q, r), n in sorted(skips.items())],
+                        "variant_skips": [[v, r, n] for (v, r), n in sorted(variant_skips.items())]})  # fmt: skip
     return job.sequence_id, True
 
 
@@ -214,10 +273,12 @@ def list_jobs(cfg: VqaConfig) -> list[SequenceJob]:
 
 def assign_letters(records: list[dict[str, Any]]) -> dict[str, int]:
     """pair -> position (0-3) of the correct option: per question id, pairs in their SHA-256 order take the
-    positions in turn, so every id's letters are balanced to within one pair."""
+    positions in turn, so every id's letters are balanced to within one pair. Records of a variant that keeps
+    its base question's letters (``letter_pair``) take no position of their own."""
     by_qid: dict[str, dict[str, int]] = defaultdict(dict)
     for r in records:
-        by_qid[r["question_id"]][r["pair"]] = r["order_key"]
+        if r.get("letter_pair", r["pair"]) == r["pair"]:  # variants of a question take its letters
+            by_qid[r["question_id"]][r["pair"]] = r["order_key"]
     positions: dict[str, int] = {}
     for qid in sorted(by_qid):
         pairs = sorted(by_qid[qid], key=lambda p: (by_qid[qid][p], p))
@@ -276,8 +337,11 @@ def run_vqa_generation(cfg: VqaConfig) -> VqaReport:
         records += part["records"]
         for qid, reason, n in part["skips"]:
             report.skips[(qid, reason)] += n
+        for name, reason, n in part["variant_skips"]:
+            report.variant_skips[(name, reason)] += n
     positions = assign_letters(records)
-    finals = [finalize(r, positions[r["pair"]]) for r in records]
+    emitted = [r for r in records if r["variant"] in cfg.variants]  # base records also carry the variants' letters
+    finals = [finalize(r, positions[r.get("letter_pair", r["pair"])]) for r in emitted]
     finals.sort(key=lambda f: f[0].idx)
     vs.write_jsonl(cfg.set_dir / vs.QUESTIONS_FILE, (item.to_json() for item, _ in finals))
     vs.write_jsonl(cfg.set_dir / vs.ANSWERS_FILE, (answer.to_json() for _, answer in finals))
@@ -297,6 +361,9 @@ def manifest(cfg: VqaConfig, items: Sequence[vs.QuestionItem], answers: Sequence
     skipped: dict[str, dict[str, int]] = defaultdict(dict)
     for (qid, reason), n in sorted(report.skips.items()):
         skipped[qid][reason] = n
+    variant_skipped: dict[str, dict[str, int]] = defaultdict(dict)
+    for (name, reason), n in sorted(report.variant_skips.items()):
+        variant_skipped[name][reason] = n
     produced = {i.question_id for i in items}
     return {
         "package_version": __version__, "seed": cfg.seed, "split": cfg.split, "config": cfg.config_yaml,
@@ -305,7 +372,10 @@ def manifest(cfg: VqaConfig, items: Sequence[vs.QuestionItem], answers: Sequence
             "category": count(i.category for i in items), "sub_category": count(i.sub_category for i in items),
             "question_id": count(i.question_id for i in items), "mode": count(i.mode for i in items),
             "letter": count(a.answer for a in answers), "num_objects": count(i.meta["num_objects"] for i in items),
+            "variant": count(i.variant for i in items),
+            "letter_per_variant": {v: count(a.answer for i, a in zip(items, answers) if i.variant == v)
+                                   for v in sorted({i.variant for i in items})},
         },
-        "skips": dict(skipped),
+        "variants": list(cfg.variants), "skips": dict(skipped), "variant_skips": dict(variant_skipped),
         "question_ids_without_items": sorted(set(cfg.question_ids or REGISTRY) - produced),
     }  # fmt: skip

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import hashlib
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,6 +24,8 @@ MULTI_FRAMES = 8
 STRIDES = (4, 3, 2, 1)
 """Multi-frame stride: the largest that fits before the question's frame."""
 MIN_DISTRACTOR = 0.04
+MULTI_PREFIX = "Consider all the frames shown, in order; answer for the last one. "
+"""Lead-in of the multi-frame version of a question asked in both modes."""
 
 
 class NotAnswerable(Exception):
@@ -135,6 +138,11 @@ def integer_question(text: str, answer: int, objects: tuple[int, ...], key: str,
 
 
 # -- names ---------------------------------------------------------------------------------------------
+def mention(name: str) -> re.Pattern[str]:
+    """Matches "the <name>" as whole words (not "the red ball" inside "the red ball-point")."""
+    return re.compile(rf"\bthe {re.escape(name)}(?![\w-])")
+
+
 def pick(pool: Sequence[str], exclude: Sequence[str], rng: np.random.Generator, count: int = 3) -> tuple[str, ...]:
     """``count`` distinct entries of ``pool`` (in a seeded order) not in ``exclude``."""
     seen = {e.strip().lower() for e in exclude}

@@ -80,6 +80,18 @@ class SequenceView:
             self.world_to_camera = r.world_to_camera(sequence_id).astype(np.float64)
         self._require_fields()
 
+    @classmethod
+    def from_arrays(cls, world_state: WorldState, K: np.ndarray, world_to_camera: np.ndarray, shard: Path,
+                    shard_relative: str) -> SequenceView:
+        """A view of a sequence held in memory (a simulated counterfactual twin); its maps are not readable."""
+        view = cls.__new__(cls)
+        view.shard, view.shard_relative, view.sequence_id = Path(shard), shard_relative, world_state.sequence_id
+        view.world_state = world_state
+        view.K = np.asarray(K, np.float64)
+        view.world_to_camera = np.asarray(world_to_camera, np.float64)
+        view._require_fields()
+        return view
+
     # -- checks ---------------------------------------------------------------
     def _missing(self, field: str) -> MissingWorldStateField:
         return MissingWorldStateField(
@@ -188,5 +200,15 @@ class SequenceView:
             return np.stack([r.read(self.sequence_id, schema.RGB, t, t + 1)[0] for t in frames])
 
     def read_instances(self, frames: list[int]) -> np.ndarray:
+        """Visible-object id per pixel (len(frames), H, W)."""
         with ShardReader(self.shard) as r:
             return np.stack([r.read(self.sequence_id, schema.INSTANCES, t, t + 1)[0] for t in frames])
+
+    def read_amodal(self, frames: list[int]) -> np.ndarray:
+        """Whole-silhouette masks (len(frames), num_objects, H, W) bool, objects in world-state order."""
+        with ShardReader(self.shard) as r:
+            return np.stack([r.read(self.sequence_id, schema.AMODAL_INSTANCES, t, t + 1)[0] for t in frames])
+
+    def object_index(self, object_id: int) -> int:
+        """Position of ``object_id`` in the world state's object list (the amodal maps' object axis)."""
+        return self.object_ids.index(object_id)

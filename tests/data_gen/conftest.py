@@ -123,3 +123,19 @@ def label_sequences(tmp_path_factory: pytest.TempPathFactory) -> dict:
             writer.add_sequence(ws.sequence_id, seq.maps, seq.K, seq.world_to_camera, ws)
     with ShardReader(out / "train" / "shard-00000.h5") as reader:
         return {kind: reader.read_sequence(f"labels-{kind}") for kind in LABEL_CAMERAS}
+
+
+@pytest.fixture(scope="session")
+def push_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Question-generation data: 3 push sequences (2-4 objects sliding into each other), 25 frames at 64 x 80
+    (shared by the VQA test modules)."""
+    root = tmp_path_factory.mktemp("vqa_data")
+    generate(root, ["split=test", "scenario=push", "num_sequences=3", "sequences_per_shard=3", "num_frames=25",
+                    "image_size=[64,80]", "scenario.num_objects=[2,4]", "seed=1"])  # fmt: skip
+    return root
+
+
+def compose_vqa(data: Path, out: Path, *overrides: str):
+    """``conf/generate_vqa.yaml`` for the test split of ``data``, writing under ``out``."""
+    return compose_config("generate_vqa", [f"data_dir={data}", "split=test", f"out_dir={out}", "progress=false",
+                                           *overrides])  # fmt: skip

@@ -20,25 +20,13 @@ from data_gen.vqa.rules import NotAnswerable, numeric_distractors, seed_of
 from data_gen.vqa.view import Box, SequenceView, box_distance
 from newtphys import schema
 from newtphys import vqa_schema as vs
-from newtphys.config import compose_config
 from newtphys.shards import ShardReader, list_shards
 from newtphys.vqa_validate import validate_question_set
-from tests.data_gen.conftest import generate
-
-
-@pytest.fixture(scope="module")
-def push_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """3 push sequences (2-4 objects sliding into each other), 25 frames at 64 x 80."""
-    root = tmp_path_factory.mktemp("vqa_data")
-    generate(root, ["split=test", "scenario=push", "num_sequences=3", "sequences_per_shard=3", "num_frames=25",
-                    "image_size=[64,80]", "scenario.num_objects=[2,4]", "seed=1"])  # fmt: skip
-    return root
+from tests.data_gen.conftest import compose_vqa
 
 
 def _vqa(data: Path, out: Path, *overrides: str):
-    cfg = compose_config("generate_vqa", [f"data_dir={data}", "split=test", f"out_dir={out}", "progress=false",
-                                          *overrides])  # fmt: skip
-    return run_vqa(cfg)
+    return run_vqa(compose_vqa(data, out, *overrides))
 
 
 @pytest.fixture(scope="module")

@@ -108,6 +108,9 @@ BREAKAGES = {
                                                  category="temporal", sub_category="event_ordering"),
                         "mode 'single' not one of ['multi']"),
     "meta incomplete": (lambda i, a: i[0]["meta"].pop("gravity_m_s2"), "meta lacks ['gravity_m_s2']"),
+    "unknown variant": (lambda i, a: i[0].update(variant="roi_square"), "q0/variant: unknown variant 'roi_square'"),
+    "factual id in a counterfactual variant": (lambda i, a: i[0].update(variant="cf_gravity"),
+                                               "variant 'cf_gravity' with question_id 'F_MASS_OBJECT'"),
 }
 
 
@@ -123,6 +126,12 @@ def test_each_breakage_is_named(question_set: Path, breakage: str, capsys) -> No
     out = capsys.readouterr().out.splitlines()
     assert out[-1] == f"checked 1 question set(s): {len(problems)} error(s), 0 warning(s)"
     assert len(out) == len(problems) + 1  # one line per problem
+
+
+def test_the_contract_document_describes_every_variant() -> None:
+    text = (Path(__file__).resolve().parents[2] / "docs" / "vqa_contract.md").read_text()
+    section = text.split("## Variants", 1)[1].split("\n## ", 1)[0]
+    assert [v for v in vs.VARIANTS if f"`{v}`" not in section] == []
 
 
 def test_missing_files_are_named(tmp_path: Path) -> None:

@@ -27,7 +27,7 @@ def speed(ctx: Context) -> Question:
 def acceleration(ctx: Context) -> Question:
     target = ctx.target()
     a = float(np.linalg.norm(ctx.view.acceleration(ctx.frame, target)))
-    return Question(f"What is the magnitude of the {ctx.name(target)}'s acceleration?", fmt(a, 2, "m/s²"),
+    return Question(f"What is the magnitude of the acceleration of the {ctx.name(target)}?", fmt(a, 2, "m/s²"),
                     numeric_distractors(a, 2, "m/s²", ctx.rng), round(a, 4), "m/s^2", (target,), f"{target}")
 
 
