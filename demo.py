@@ -84,13 +84,17 @@ def main() -> int:
          [py, "generate_vqa.py", f"data_dir={data}", "split=test", f"out_dir={vqa}", "exclude_last_frames=4",
           f"paths.log_dir={out / 'logs'}"])
     step("validate the question set against the VQA contract", [py, "-m", "newtphys", "validate-vqa", str(vqa)])
+    step("contact sheet of sample questions", [py, "-m", "newtphys", "view-vqa", str(vqa), "--out",
+                                               str(out / "pictures" / "questions.png")])
     manifest = json.loads((vqa / "test" / "manifest.json").read_text())
     print(f"\n== {manifest['num_items']} questions, {len(manifest['counts']['question_id'])} question ids")
     for category, n in manifest["counts"]["category"].items():
         print(f"   {category:<28} {n}")
     print(f"   letters {manifest['counts']['letter']}")
+    print(f"   answered by the text alone above chance (blind-prior audit): {manifest['blind_solvable_question_ids']}")
     print(f"\ndone in {time.perf_counter() - t0:.0f} s; outputs under {out}:")
     print("   pictures/train-000000.png, .mp4   stats/stats.png   probe/metrics.json   vqa/test/questions.jsonl")
+    print(f"   question contact sheet: {out / 'pictures' / 'questions.png'}")
     return 0
 
 

@@ -103,6 +103,11 @@ def cmd_stats(args: argparse.Namespace) -> int:
         return 1
     print(_markdown(summary))
     print(f"wrote {out / 'stats.png'}, {out / 'summary.md'}, {out / 'summary.json'}")
+    if args.vqa:
+        from newtphys.vqa_viz import stats_panel
+
+        for set_dir in _question_sets_under(Path(args.vqa)):
+            print(f"wrote {stats_panel(set_dir, out / f'vqa-{set_dir.name}.png')}")
     return 0
 
 
@@ -172,6 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     st = sub.add_parser("stats", help="dataset statistics plots and summary table (from world states)")
     st.add_argument("path", help="a split directory or dataset root")
     st.add_argument("--out", default=None, help="output directory (default: PATH/stats)")
+    st.add_argument("--vqa", default=None, help="also draw the VQA panel of the question sets under this directory")
     st.set_defaults(func=cmd_stats)
     q = sub.add_parser("validate-vqa", help="check question sets against the VQA contract (docs/vqa_contract.md)")
     q.add_argument("paths", nargs="+", help="a question-set directory (<vqa_dir>/<split>) or a VQA root")

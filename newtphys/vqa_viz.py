@@ -64,3 +64,51 @@ def contact_sheet(set_dir: Path | str, out_png: Path | str, count: int = 12, see
     out_png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out_png, dpi=110)
     return out_png
+
+
+def stats_panel(set_dir: Path | str, out_png: Path | str) -> Path:
+    """A question set at a glance: items per category and sub-category, letter shares, objects per question
+    and the blind-prior audit (best text-only accuracy per question id against chance)."""
+    set_dir, out_png = Path(set_dir), Path(out_png)
+    items = vs.read_items(set_dir)
+    answers = vs.read_answers(set_dir)
+    manifest = vs.read_manifest(set_dir) if (set_dir / vs.MANIFEST_FILE).is_file() else {}
+    fig = Figure(figsize=(15, 9))
+    axes = fig.subplots(2, 3).ravel()
+
+    def bars(ax, counts: dict[str, float], title: str, horizontal: bool = False, line: float | None = None) -> None:
+        names, values = list(counts), list(counts.values())
+        if horizontal:
+            ax.barh(names, values, color="#4477aa")
+            ax.tick_params(axis="y", labelsize=6)
+            if line is not None:
+                ax.axvline(line, color="red", lw=1)
+        else:
+            ax.bar(names, values, color="#4477aa")
+            ax.tick_params(axis="x", labelrotation=45, labelsize=7)
+            if line is not None:
+                ax.axhline(line, color="red", lw=1)
+        ax.set_title(title, fontsize=10)
+
+    def counts_of(values) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for v in values:
+            out[str(v)] = out.get(str(v), 0) + 1
+        return dict(sorted(out.items()))
+
+    bars(axes[0], counts_of(i.category for i in items), "items per category")
+    bars(axes[1], counts_of(i.sub_category for i in items), "items per sub-category", horizontal=True)
+    letters = counts_of(answers[i.idx].answer for i in items)
+    bars(axes[2], {k: v / max(len(items), 1) for k, v in letters.items()}, "share of each answer letter",
+         line=1.0 / len(vs.LETTERS))
+    by_objects = counts_of(i.meta.get("num_objects") for i in items)
+    bars(axes[3], dict(sorted(by_objects.items(), key=lambda kv: int(kv[0]))), "items by objects in the scene")
+    bars(axes[4], counts_of(i.mode for i in items), "items per mode")
+    blind = manifest.get("blind_prior", {})
+    bars(axes[5], {q.removeprefix("F_")[:34]: r["best_accuracy"] for q, r in sorted(blind.items())},
+         "blind prior: best text-only accuracy (red: chance)", horizontal=True, line=1.0 / len(vs.LETTERS))
+    fig.suptitle(f"{set_dir}: {len(items)} items, {len({i.question_id for i in items})} question ids", fontsize=11)
+    fig.tight_layout()
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=100)
+    return out_png

@@ -38,6 +38,7 @@ from data_gen.vqa.variants import CounterfactualSettings, VariantInputs
 from data_gen.vqa.view import SequenceView
 from newtphys import __version__
 from newtphys import vqa_schema as vs
+from newtphys.vqa_prior import audit as blind_audit
 from newtphys.shards import ShardReader, list_shards
 
 log = logging.getLogger(__name__)
@@ -354,7 +355,8 @@ def run_vqa_generation(cfg: VqaConfig) -> VqaReport:
 
 def manifest(cfg: VqaConfig, items: Sequence[vs.QuestionItem], answers: Sequence[vs.AnswerRecord],
              report: VqaReport) -> dict[str, Any]:  # fmt: skip
-    """Counts per category, sub-category, question id, mode, letter and number of objects; skips per id/reason."""
+    """Counts per category, sub-category, question id, mode, letter and number of objects; skips per id/reason;
+    the blind-prior audit (per question id: how well the text alone answers, and whether that beats chance)."""
     def count(values) -> dict[str, int]:
         return dict(sorted(Counter(str(v) for v in values).items()))
 
@@ -365,6 +367,8 @@ def manifest(cfg: VqaConfig, items: Sequence[vs.QuestionItem], answers: Sequence
     for (name, reason), n in sorted(report.variant_skips.items()):
         variant_skipped[name][reason] = n
     produced = {i.question_id for i in items}
+    base = [(i, a) for i, a in zip(items, answers) if i.variant == vs.BASE_VARIANT]
+    blind = blind_audit([i for i, _ in base], {a.idx: a for _, a in base})  # on the base items: no image cues
     return {
         "package_version": __version__, "seed": cfg.seed, "split": cfg.split, "config": cfg.config_yaml,
         "num_items": len(items), "num_sequences": report.sequences,
@@ -378,4 +382,6 @@ def manifest(cfg: VqaConfig, items: Sequence[vs.QuestionItem], answers: Sequence
         },
         "variants": list(cfg.variants), "skips": dict(skipped), "variant_skips": dict(variant_skipped),
         "question_ids_without_items": sorted(set(cfg.question_ids or REGISTRY) - produced),
+        "blind_prior": blind,
+        "blind_solvable_question_ids": sorted(q for q, r in blind.items() if r["beats_chance"]),
     }  # fmt: skip

@@ -47,6 +47,9 @@ def test_the_set_validates_covers_the_catalogue_and_balances_letters(question_se
     for qid in manifest["question_ids_without_items"]:  # the manifest says why each id has no item
         assert manifest["skips"][qid], qid
     assert {i.category for i in items} == set(vs.CATEGORIES)
+    blind = manifest["blind_prior"]  # the audit covers every id with items and flags the ones text answers
+    assert set(blind) == {i.question_id for i in items if i.variant == vs.BASE_VARIANT}
+    assert manifest["blind_solvable_question_ids"] == sorted(q for q, r in blind.items() if r["beats_chance"])
     shares = Counter(a.answer for a in answers.values())
     assert len(items) >= 200
     for letter in vs.LETTERS:
@@ -251,6 +254,10 @@ def test_contact_sheet_draws_the_sampled_items(question_set: Path, tmp_path: Pat
     assert cli_main(["view-vqa", str(question_set), "--out", str(tmp_path / "sheet.png"), "--count", "6"]) == 0
     with PILImage.open(tmp_path / "sheet.png") as im:
         assert im.size[1] > 6 * 150  # one row per item
+    from newtphys.vqa_viz import stats_panel
+
+    with PILImage.open(stats_panel(question_set, tmp_path / "vqa.png")) as im:
+        assert im.size == (1500, 900)
 
 
 def test_the_answer_letter_points_at_the_right_option(push_data: Path, question_set: Path) -> None:
