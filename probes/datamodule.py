@@ -11,7 +11,7 @@ the task target, ``sequence_id``, ``frame_index`` ...) plus either
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -231,6 +231,20 @@ class ProbeDataModule(L.LightningDataModule):
         for split in schema.SPLITS:
             if split not in self._clip_sets:
                 self._clip_sets[split] = self.build_split(split)
+
+    def clip_dataset(self, split: str) -> ClipDataset:
+        """The split's clips without backbone features (frames, targets, object masks)."""
+        ds = self._clip_sets.get(split)
+        if ds is None:
+            ds = self.datasets[split] if split in self.datasets else self.build_split(split)
+        return ds.clips if isinstance(ds, CachedFeatureDataset) else ds
+
+    def target_batches(self, split: str, key: str) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        """(target ``key``, object mask) batches of a split in a fixed order, without extracting features:
+        what trivial baselines are fitted and scored on (:mod:`probes.baselines`)."""
+        loader = DataLoader(self.clip_dataset(split), batch_size=self.eval_batch_size, shuffle=False, num_workers=0)
+        for batch in loader:
+            yield batch[key], batch["object_mask"]
 
     def dataset(self, split: str) -> Dataset:
         """The split's dataset, built on first use; with the cache on, missing frames are extracted first."""

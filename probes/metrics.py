@@ -12,12 +12,17 @@ Averaging
   object pixels of all images** (per-pixel F1, what ``BinaryF1Score`` gives on
   the masked pixels). When there is no positive in the targets and none in the
   predictions (``tp + fp + fn == 0``) the F1 is ``zero_division`` (0.0 by
-  default, as torchmetrics).
+  default, as torchmetrics). Given ``thresholds`` it takes contact scores and
+  keeps the sums per threshold (a precision-recall curve in sums and counts);
+  its value is then the F1 of the best threshold.
 * The vector errors (``GravityAngularError`` in degrees, ``GravityMagnitudeError``
   in N, ``SceneFlowEPE`` in m) are averaged **per image first** (mean over that
   image's valid pixels), **then over images**. An image with no valid pixel
   contributes nothing (it is not counted); when no image of the whole epoch has
   a valid pixel the value is NaN.
+* Every metric class names the value of a perfect prediction (``optimum``:
+  1 for F1, 0 for errors); skill scores (:mod:`probes.baselines`) measure the
+  way from a trivial baseline to it.
 * Valid pixels: object pixels (``mask`` True). For the angular error, pixels
   whose ground-truth vector has zero length (``|g| <= ZERO_LENGTH_EPS``) are
   excluded too: their direction is undefined. A zero-length *prediction* has
@@ -28,6 +33,7 @@ Averaging
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -82,32 +88,61 @@ def _mean_from_state(total: Tensor, count: Tensor) -> Tensor:
 # --------------------------------------------------------------------------- #
 # Functional cores
 # --------------------------------------------------------------------------- #
-def collision_f1_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def collision_f1_update(
+    preds: Tensor, target: Tensor, mask: Tensor, thresholds: Tensor | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
     """True positives, false positives, false negatives over object pixels.
 
-    preds: (B, H, W) bool (or {0,1}) predicted contact; target: (B, H, W) {0,1}; mask: (B, H, W) bool.
+    preds: (B, H, W) bool (or {0,1}) predicted contact -- or, with ``thresholds`` (T,) increasing,
+    contact scores (probabilities) that count as positive where ``score > threshold``: the sums
+    are then (T,), one per threshold. target: (B, H, W) {0,1}; mask: (B, H, W) bool.
     """
     _check_scalar_inputs(preds, target, mask)
     m = mask.bool()
-    p = preds.bool() & m
     t = target.bool() & m
-    tp = (p & t).sum().to(torch.float64)
-    fp = (p & ~t).sum().to(torch.float64)
-    fn = (~p & t & m).sum().to(torch.float64)
-    return tp, fp, fn
+    if thresholds is None:
+        p = preds.bool() & m
+        tp = (p & t).sum().to(torch.float64)
+        fp = (p & ~t).sum().to(torch.float64)
+        fn = (~p & t & m).sum().to(torch.float64)
+        return tp, fp, fn
+    thr = _check_thresholds(thresholds).to(preds.device)
+    scores = preds[m].to(torch.float64)
+    positive = t[m]
+    # bin k holds scores above exactly k thresholds; a pixel is predicted positive at threshold j iff k > j
+    bins = torch.searchsorted(thr, scores, right=False)
+    hist_pos = torch.bincount(bins[positive], minlength=len(thr) + 1).to(torch.float64)
+    hist_neg = torch.bincount(bins[~positive], minlength=len(thr) + 1).to(torch.float64)
+    tp = hist_pos.flip(0).cumsum(0).flip(0)[1:]  # positives in bins j+1 .. T
+    fp = hist_neg.flip(0).cumsum(0).flip(0)[1:]
+    fn = hist_pos.sum() - tp
+    return tp.cpu(), fp.cpu(), fn.cpu()
+
+
+def _check_thresholds(thresholds: Tensor) -> Tensor:
+    thr = torch.as_tensor(thresholds, dtype=torch.float64).reshape(-1)
+    if thr.numel() == 0 or not bool(torch.all(thr[1:] > thr[:-1])):
+        raise ValueError(f"thresholds must be a non-empty, strictly increasing sequence, got {thr.tolist()}")
+    return thr
 
 
 def collision_f1_compute(tp: Tensor, fp: Tensor, fn: Tensor, zero_division: float = 0.0) -> Tensor:
-    """F1 = 2 tp / (2 tp + fp + fn); ``zero_division`` when the denominator is 0."""
+    """F1 = 2 tp / (2 tp + fp + fn) (elementwise for per-threshold sums); ``zero_division`` where the
+    denominator is 0."""
     denom = 2 * tp + fp + fn
-    if denom <= 0:
-        return torch.tensor(float(zero_division), dtype=torch.float64)
-    return 2 * tp / denom
+    return torch.where(
+        denom > 0, 2 * tp / denom.clamp_min(1.0), torch.full_like(denom, float(zero_division))
+    ).to(torch.float64)
 
 
-def collision_f1(preds: Tensor, target: Tensor, mask: Tensor, zero_division: float = 0.0) -> Tensor:
-    """Per-pixel F1 of predicted contact over object pixels (see module docstring)."""
-    return collision_f1_compute(*collision_f1_update(preds, target, mask), zero_division=zero_division)
+def collision_f1(
+    preds: Tensor, target: Tensor, mask: Tensor, zero_division: float = 0.0, thresholds: Tensor | None = None
+) -> Tensor:
+    """Per-pixel F1 of predicted contact over object pixels (see module docstring); (T,) per threshold
+    when ``thresholds`` are given (``preds`` are then scores)."""
+    return collision_f1_compute(
+        *collision_f1_update(preds, target, mask, thresholds), zero_division=zero_division
+    )
 
 
 def angular_error_deg(preds: Tensor, target: Tensor) -> Tensor:
@@ -162,28 +197,50 @@ def scene_flow_epe(preds: Tensor, target: Tensor, mask: Tensor) -> Tensor:
 # Metric classes
 # --------------------------------------------------------------------------- #
 class CollisionF1(Metric):
-    """Per-pixel F1 of contact on object pixels, pooled over all images (see module docstring)."""
+    """Per-pixel F1 of contact on object pixels, pooled over all images (see module docstring).
+
+    Without ``thresholds`` it scores bool decisions. With ``thresholds`` (increasing scores in
+    [0, 1)) it takes contact scores, keeps tp / fp / fn per threshold, and ``compute`` gives the F1
+    of the best threshold (:meth:`best_threshold`): how a decision threshold is calibrated on
+    validation.
+    """
 
     is_differentiable = False
     higher_is_better = True
     full_state_update = False
+    optimum = 1.0
 
-    def __init__(self, zero_division: float = 0.0, **kwargs) -> None:
+    def __init__(
+        self, zero_division: float = 0.0, thresholds: Sequence[float] | Tensor | None = None, **kwargs
+    ) -> None:
         super().__init__(**kwargs)
         if zero_division not in (0.0, 1.0):
             raise ValueError(f"zero_division must be 0.0 or 1.0, got {zero_division!r}")
         self.zero_division = float(zero_division)
+        self.thresholds = None if thresholds is None else _check_thresholds(torch.as_tensor(thresholds))
+        shape = () if self.thresholds is None else (len(self.thresholds),)
         for name in ("tp", "fp", "fn"):
-            self.add_state(name, default=torch.tensor(0.0, dtype=torch.float64), dist_reduce_fx="sum")
+            self.add_state(name, default=torch.zeros(shape, dtype=torch.float64), dist_reduce_fx="sum")
 
     def update(self, preds: Tensor, target: Tensor, mask: Tensor) -> None:
-        tp, fp, fn = collision_f1_update(preds, target, mask)
-        self.tp += tp
-        self.fp += fp
-        self.fn += fn
+        tp, fp, fn = collision_f1_update(preds, target, mask, self.thresholds)
+        self.tp += tp.to(self.tp.device)
+        self.fp += fp.to(self.fp.device)
+        self.fn += fn.to(self.fn.device)
+
+    def f1_per_threshold(self) -> Tensor:
+        """F1 of every threshold (a 0-d tensor without thresholds)."""
+        return collision_f1_compute(self.tp, self.fp, self.fn, self.zero_division)
+
+    def best_threshold(self) -> float:
+        """The (lowest) threshold with the highest F1 on the data seen so far."""
+        if self.thresholds is None:
+            raise ValueError("best_threshold needs a CollisionF1 built with thresholds=...")
+        return float(self.thresholds[int(torch.argmax(self.f1_per_threshold()))])
 
     def compute(self) -> Tensor:
-        return collision_f1_compute(self.tp, self.fp, self.fn, self.zero_division)
+        f1 = self.f1_per_threshold()
+        return f1 if self.thresholds is None else f1.max()
 
 
 class _PerImageMeanMetric(Metric):
@@ -192,6 +249,7 @@ class _PerImageMeanMetric(Metric):
     is_differentiable = False
     higher_is_better = False
     full_state_update = False
+    optimum = 0.0
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)

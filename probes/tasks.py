@@ -4,17 +4,29 @@ A task is data (:class:`TaskSpec`: target map, channels, scale, metrics) plus
 one loss. Losses and metrics only see object pixels of the last frame
 (``object_mask``). Losses average over all object pixels of the batch (pooled
 per pixel); a batch without object pixels gives a zero loss that still has a
-graph.
+graph. Every task also names its trivial baselines (:mod:`probes.baselines`)
+and the head output that reproduces their train constant
+(:meth:`Task.output_bias`: a decoder starts from it, so a probe begins where a
+constant ends).
 
 * ``collision`` -- 1 logit per pixel. Binary cross-entropy with the positive
   class weighted by ``neg / pos`` counted over the object pixels of the batch
   (clamped to [1/``max_pos_weight``, ``max_pos_weight``]; 1 when the batch has
-  no positive or no negative). Prediction: ``sigmoid(logit) > 0.5``.
+  no positive or no negative). Prediction: ``sigmoid(logit) > threshold``; the
+  threshold is calibrated on validation (the one of
+  ``CALIBRATION_THRESHOLDS`` with the best F1, :meth:`Task.calibrate`) and
+  travels in checkpoints. With rare contacts, F1 rewards recall: an
+  uninformed probe at 0.5 scored below predicting contact everywhere.
 * ``gravity`` -- 3 channels, the gravity force in N in the camera frame,
-  predicted as ``force / target_scale_n``. Loss = direction ``(1 - cos)`` +
-  ``magnitude_weight`` x L1 of ``log(|p| + eps)`` vs ``log(|g| + eps)``: the
-  log makes the magnitude term relative (a 10 % error costs the same on a
-  1 N and on a 100 N object), and the two terms stay on one scale.
+  predicted as ``force / target_scale_n``. Loss = direction term
+  ``|p/|p| - g/|g||`` (chord between unit vectors, = 2 sin(angle / 2), about
+  the angle in radians) + ``magnitude_weight`` x L1 of ``log(|p| + eps)`` vs
+  ``log(|g| + eps)`` (about the relative magnitude error). Both terms are
+  linear in their error and their gradients have the same size (``1/|p|``,
+  tangential vs radial), so neither drowns the other (``1 - cos``, quadratic
+  in the angle, was ~0.03 at 15 degrees next to a log-magnitude term of ~0.4).
+  The best constant under this loss is the train median magnitude along the
+  spherical median direction.
 * ``scene_flow`` -- 3 channels, displacement in m to the next frame, predicted
   as ``flow / target_scale_m``. Loss = endpoint error (L2 norm of the
   difference, in units of ``target_scale_m``).
@@ -31,9 +43,14 @@ from torchmetrics import Metric
 
 from newtphys import schema
 from probes import metrics as M
+from probes.baselines import BASELINES, TrivialBaselines
 
 LOG_MAGNITUDE_EPS: float = 1e-6
 """Added to magnitudes (in units of the task scale) before the log in the gravity loss."""
+UNIT_EPS: float = 1e-8
+"""Norms (in units of the task scale) are clamped to at least this before dividing by them."""
+CALIBRATION_THRESHOLDS: tuple[float, ...] = tuple(i / 100 for i in range(100))
+"""Contact-probability thresholds tried on validation (0 predicts contact on every pixel)."""
 
 
 @dataclass(frozen=True)
@@ -45,30 +62,24 @@ class TaskSpec:
     """Map name in :mod:`newtphys.schema` (the dataset key of the target)."""
     out_channels: int
     unit: str
-    monitor: str
-    """Metric (without split prefix) used for model selection on val."""
-    monitor_mode: str
-    """"max" or "min"."""
     metric_names: tuple[str, ...] = field(default_factory=tuple)
+    """Model selection weighs them alike: the mean skill over the best trivial baseline (probes.run)."""
 
 
 TASK_SPECS: dict[str, TaskSpec] = {
     s.name: s
     for s in (
-        TaskSpec("collision", schema.COLLISION, 1, "bool", "collision_f1", "max", ("collision_f1",)),
-        TaskSpec(
-            "gravity",
-            schema.GRAVITY,
-            3,
-            "N",
-            "gravity_angular_error_deg",
-            "min",
-            ("gravity_angular_error_deg", "gravity_magnitude_error_n"),
-        ),
-        TaskSpec("scene_flow", schema.SCENE_FLOW, 3, "m", "scene_flow_epe_m", "min", ("scene_flow_epe_m",)),
+        TaskSpec("collision", schema.COLLISION, 1, "bool", ("collision_f1",)),
+        TaskSpec("gravity", schema.GRAVITY, 3, "N", ("gravity_angular_error_deg", "gravity_magnitude_error_n")),
+        TaskSpec("scene_flow", schema.SCENE_FLOW, 3, "m", ("scene_flow_epe_m",)),
     )
 }
 TASK_NAMES: tuple[str, ...] = tuple(TASK_SPECS)
+
+
+def _norm(v: Tensor) -> Tensor:
+    """L2 norm over channels of (B, 3, H, W); the small floor under the sqrt keeps the gradient finite at 0."""
+    return torch.sqrt((v * v).sum(1) + 1e-12)
 
 
 def _masked_mean(per_pixel: Tensor, mask: Tensor) -> Tensor:
@@ -97,14 +108,6 @@ class Task:
     def out_channels(self) -> int:
         return self.spec.out_channels
 
-    @property
-    def monitor(self) -> str:
-        return self.spec.monitor
-
-    @property
-    def monitor_mode(self) -> str:
-        return self.spec.monitor_mode
-
     def loss(self, output: Tensor, target: Tensor, mask: Tensor) -> Tensor:
         """Scalar loss of head ``output`` (B, C, H, W) against ``target`` on ``mask`` (B, H, W) pixels."""
         raise NotImplementedError
@@ -117,9 +120,33 @@ class Task:
         """Fresh metric objects, keyed by the names of ``spec.metric_names``."""
         raise NotImplementedError
 
-    def constant_baseline(self, target: Tensor, mask: Tensor) -> dict[str, Tensor]:
-        """Best constant predictors of this task on (target, mask): name -> prediction like ``predict``'s."""
+    def baselines(self) -> TrivialBaselines:
+        """This task's trivial baselines, unfitted (:mod:`probes.baselines`)."""
+        return BASELINES[self.name]()
+
+    def output_bias(self, fitted: dict) -> Tensor:
+        """Head output (``out_channels``,) that predicts the train constant of ``TrivialBaselines.fitted()``."""
         raise NotImplementedError
+
+    # Decision parameters beyond the head (a collision threshold): chosen on validation, kept in checkpoints.
+    def calibration_metrics(self) -> dict[str, Metric]:
+        """Validation metrics that replace ``metrics()`` entries of the same name and pick the decision;
+        they are fed :meth:`scores`. None for tasks without a decision parameter."""
+        return {}
+
+    def scores(self, output: Tensor) -> Tensor:
+        """What calibration metrics receive (for collision the contact probability)."""
+        return self.predict(output)
+
+    def calibrate(self, metrics: dict[str, Metric]) -> None:
+        """Set the decision parameters from the filled ``calibration_metrics()``."""
+
+    def decision(self) -> dict[str, float]:
+        """The decision parameters (JSON-ready)."""
+        return {}
+
+    def load_decision(self, decision: dict[str, float]) -> None:
+        """Restore :meth:`decision` (from a checkpoint)."""
 
 
 class CollisionTask(Task):
@@ -129,8 +156,8 @@ class CollisionTask(Task):
         super().__init__(TASK_SPECS["collision"])
         if max_pos_weight < 1.0:
             raise ValueError(f"max_pos_weight must be >= 1, got {max_pos_weight}")
-        if not 0.0 < threshold < 1.0:
-            raise ValueError(f"threshold must be in (0, 1), got {threshold}")
+        if not 0.0 <= threshold < 1.0:
+            raise ValueError(f"threshold must be in [0, 1), got {threshold}")
         self.max_pos_weight = float(max_pos_weight)
         self.threshold = float(threshold)
 
@@ -157,11 +184,28 @@ class CollisionTask(Task):
     def metrics(self) -> dict[str, Metric]:
         return {"collision_f1": M.CollisionF1()}
 
-    def constant_baseline(self, target: Tensor, mask: Tensor) -> dict[str, Tensor]:
-        return {
-            "all_negative": torch.zeros_like(target, dtype=torch.bool),
-            "all_positive": torch.ones_like(target, dtype=torch.bool),
-        }
+    def output_bias(self, fitted: dict) -> Tensor:
+        # the balanced loss is minimised by a constant logit of 0 whatever the positive rate
+        return torch.zeros(1)
+
+    def calibration_metrics(self) -> dict[str, Metric]:
+        return {"collision_f1": M.CollisionF1(thresholds=CALIBRATION_THRESHOLDS)}
+
+    def scores(self, output: Tensor) -> Tensor:
+        return torch.sigmoid(output[:, 0])
+
+    def calibrate(self, metrics: dict[str, Metric]) -> None:
+        metric = metrics["collision_f1"]
+        if not isinstance(metric, M.CollisionF1):
+            raise TypeError(f"collision calibration needs a CollisionF1, got {type(metric).__name__}")
+        self.threshold = metric.best_threshold()
+
+    def decision(self) -> dict[str, float]:
+        return {"threshold": self.threshold}
+
+    def load_decision(self, decision: dict[str, float]) -> None:
+        if "threshold" in decision:
+            self.threshold = float(decision["threshold"])
 
 
 class GravityTask(Task):
@@ -178,10 +222,11 @@ class GravityTask(Task):
 
     def loss(self, output: Tensor, target: Tensor, mask: Tensor) -> Tensor:
         g = target / self.target_scale_n
-        cos = F.cosine_similarity(output, g, dim=1, eps=1e-8)
-        log_p = torch.log(output.norm(dim=1) + LOG_MAGNITUDE_EPS)
-        log_g = torch.log(g.norm(dim=1) + LOG_MAGNITUDE_EPS)
-        per_pixel = (1.0 - cos) + self.magnitude_weight * (log_p - log_g).abs()
+        norm_p, norm_g = _norm(output), _norm(g)
+        # chord between unit vectors: 2 sin(angle / 2)
+        chord = _norm(output / norm_p.clamp_min(UNIT_EPS).unsqueeze(1) - g / norm_g.clamp_min(UNIT_EPS).unsqueeze(1))
+        log_ratio = torch.log(norm_p + LOG_MAGNITUDE_EPS) - torch.log(norm_g + LOG_MAGNITUDE_EPS)
+        per_pixel = chord + self.magnitude_weight * log_ratio.abs()
         return _masked_mean(per_pixel, mask)
 
     def predict(self, output: Tensor) -> Tensor:
@@ -193,10 +238,9 @@ class GravityTask(Task):
             "gravity_magnitude_error_n": M.GravityMagnitudeError(),
         }
 
-    def constant_baseline(self, target: Tensor, mask: Tensor) -> dict[str, Tensor]:
-        m = mask.bool().unsqueeze(1).to(target.dtype)
-        mean = (target * m).sum((0, 2, 3)) / m.sum().clamp_min(1.0)
-        return {"mean_vector": mean.view(1, 3, 1, 1).expand_as(target).clone()}
+    def output_bias(self, fitted: dict) -> Tensor:
+        direction = torch.tensor(fitted["direction"], dtype=torch.float32)
+        return direction * float(fitted["median_magnitude_n"]) / self.target_scale_n
 
 
 class SceneFlowTask(Task):
@@ -209,10 +253,7 @@ class SceneFlowTask(Task):
         self.target_scale_m = float(target_scale_m)
 
     def loss(self, output: Tensor, target: Tensor, mask: Tensor) -> Tensor:
-        diff = output - target / self.target_scale_m
-        # sqrt with a small floor keeps the gradient finite at a perfect prediction
-        epe = torch.sqrt((diff * diff).sum(1) + 1e-12)
-        return _masked_mean(epe, mask)
+        return _masked_mean(_norm(output - target / self.target_scale_m), mask)
 
     def predict(self, output: Tensor) -> Tensor:
         return output * self.target_scale_m
@@ -220,8 +261,8 @@ class SceneFlowTask(Task):
     def metrics(self) -> dict[str, Metric]:
         return {"scene_flow_epe_m": M.SceneFlowEPE()}
 
-    def constant_baseline(self, target: Tensor, mask: Tensor) -> dict[str, Tensor]:
-        return {"all_zero": torch.zeros_like(target)}
+    def output_bias(self, fitted: dict) -> Tensor:
+        return torch.tensor(fitted["mean_flow_m"], dtype=torch.float32) / self.target_scale_m
 
 
 _TASK_CLASSES: dict[str, type[Task]] = {
