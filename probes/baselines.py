@@ -183,6 +183,17 @@ BASELINES: dict[str, type[TrivialBaselines]] = {
 }
 
 
+BASELINE_LABELS: dict[str, str] = {
+    "all_negative": "collision: none",
+    "all_positive": "collision: everywhere",
+    "train_rate": "collision: random at the train rate",
+    "constant": "gravity: train mean direction x median magnitude",
+    "zero": "flow: zero",
+    "mean": "flow: train mean",
+}
+"""How tables name each baseline."""
+
+
 def skill(value: float | None, reference: float | None, optimum: float) -> float:
     """(value - reference) / (optimum - reference); NaN when either is missing or the reference is perfect."""
     if value is None or reference is None or not (math.isfinite(value) and math.isfinite(reference)):
