@@ -120,12 +120,11 @@ class GravityBaselines(TrivialBaselines):
         self.counts = torch.zeros(0, dtype=torch.float64)  # pixels of each
 
     def update(self, target: Tensor, mask: Tensor) -> None:
-        g = target.to(torch.float64).cpu()
+        g = target.movedim(1, -1)[mask.bool()].to(torch.float64).cpu()  # object pixels (N, 3)
         norm = g.norm(dim=1)
-        valid = mask.bool().cpu() & (norm > ZERO_LENGTH_EPS)
-        unit = (g / norm.clamp_min(ZERO_LENGTH_EPS).unsqueeze(1)).permute(0, 2, 3, 1)[valid]
-        self.direction_sum += unit.sum(0)
-        values, counts = torch.unique(norm[valid], return_counts=True)
+        keep = norm > ZERO_LENGTH_EPS
+        self.direction_sum += (g[keep] / norm[keep].unsqueeze(1)).sum(0)
+        values, counts = torch.unique(norm[keep], return_counts=True)
         merged, inverse = torch.unique(torch.cat([self.magnitudes, values]), return_inverse=True)
         self.counts = torch.zeros(len(merged), dtype=torch.float64).index_add_(
             0, inverse, torch.cat([self.counts, counts.to(torch.float64)])
@@ -159,9 +158,9 @@ class SceneFlowBaselines(TrivialBaselines):
         self.count = torch.zeros((), dtype=torch.float64)
 
     def update(self, target: Tensor, mask: Tensor) -> None:
-        m = mask.bool().cpu()
-        self.total += target.to(torch.float64).cpu().permute(0, 2, 3, 1)[m].sum(0)
-        self.count += m.sum().to(torch.float64)
+        m = mask.bool()
+        self.total += target.movedim(1, -1)[m].to(torch.float64).sum(0).cpu()
+        self.count += m.sum().to(torch.float64).cpu()
 
     @property
     def mean_m(self) -> Tensor:

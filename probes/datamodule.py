@@ -17,7 +17,7 @@ from typing import Any
 
 import lightning as L
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Subset
 
 from newtphys import schema
 from newtphys.dataset import ClipDataset
@@ -239,10 +239,22 @@ class ProbeDataModule(L.LightningDataModule):
             ds = self.datasets[split] if split in self.datasets else self.build_split(split)
         return ds.clips if isinstance(ds, CachedFeatureDataset) else ds
 
+    def last_frames(self, split: str) -> Dataset:
+        """The last frame of every clip of a split (in clip order) as one-frame clips: its targets and object
+        mask without reading the clip's earlier frames or extracting features."""
+        clips = self.clip_dataset(split)
+        frames = ClipDataset(
+            self.split_dir(split), clip_length=1, targets=self.targets, image_size=self.image_size
+        )
+        index = {(c.shard, c.sequence_id, c.start): i for i, c in enumerate(frames.clips)}
+        return Subset(frames, [index[(c.shard, c.sequence_id, c.start + clips.span - 1)] for c in clips.clips])
+
     def target_batches(self, split: str, key: str) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
-        """(target ``key``, object mask) batches of a split in a fixed order, without extracting features:
-        what trivial baselines are fitted and scored on (:mod:`probes.baselines`)."""
-        loader = DataLoader(self.clip_dataset(split), batch_size=self.eval_batch_size, shuffle=False, num_workers=0)
+        """(target ``key``, object mask) batches of the clips of a split, in a fixed order: what trivial
+        baselines are fitted and scored on (:mod:`probes.baselines`)."""
+        loader = DataLoader(
+            self.last_frames(split), batch_size=self.eval_batch_size, shuffle=False, num_workers=self.num_workers
+        )
         for batch in loader:
             yield batch[key], batch["object_mask"]
 

@@ -66,14 +66,25 @@ def _check_scalar_inputs(preds: Tensor, target: Tensor, mask: Tensor) -> None:
         raise ValueError(f"preds must be (B, H, W), got shape {tuple(preds.shape)}")
 
 
-def _per_image_mean(err: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
-    """Sum over images of the per-image mean error over valid pixels, and the number of images with one.
+def _gather(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Object-pixel vectors (N, 3) of preds and target in float64, and the image index (N,) of each.
 
-    err, valid: (B, H, W). Returns (sum of per-image means, count of images) as float64 scalars.
+    Errors are computed on these pixels only (objects cover a fraction of the image)."""
+    m = mask.bool()
+    image = m.nonzero()[:, 0]
+    p = preds.movedim(1, -1)[m].to(torch.float64)
+    g = target.movedim(1, -1)[m].to(torch.float64)
+    return p, g, image
+
+
+def _per_image_mean(err: Tensor, image: Tensor, num_images: int) -> tuple[Tensor, Tensor]:
+    """Sum over images of the per-image mean error, and the number of images with a pixel.
+
+    err: (N,) errors of valid pixels; image: (N,) their image index in [0, num_images).
+    Returns (sum of per-image means, count of images) as float64 scalars.
     """
-    valid = valid.to(torch.float64)
-    n = valid.flatten(1).sum(1)
-    s = (err.to(torch.float64) * valid).flatten(1).sum(1)
+    n = torch.bincount(image, minlength=num_images).to(torch.float64)
+    s = torch.zeros(num_images, dtype=torch.float64, device=err.device).index_add_(0, image, err.to(torch.float64))
     has = n > 0
     means = s[has] / n[has]
     return means.sum(), has.sum().to(torch.float64)
@@ -145,37 +156,43 @@ def collision_f1(
     )
 
 
-def angular_error_deg(preds: Tensor, target: Tensor) -> Tensor:
-    """Angle between (B, 3, H, W) vectors in degrees, (B, H, W); cosine clamped to [-1, 1]."""
-    p = preds.to(torch.float64)
-    g = target.to(torch.float64)
-    dot = (p * g).sum(1)
-    norms = p.norm(dim=1) * g.norm(dim=1)
+def _angle_deg(p: Tensor, g: Tensor, dim: int) -> Tensor:
+    """Angle between vectors along ``dim`` in degrees (float64); cosine clamped to [-1, 1]; 90 deg for a zero vector."""
+    p = p.to(torch.float64)
+    g = g.to(torch.float64)
+    dot = (p * g).sum(dim)
+    norms = p.norm(dim=dim) * g.norm(dim=dim)
     cos = torch.where(
         norms > 0, dot / norms.clamp_min(torch.finfo(torch.float64).tiny), torch.zeros_like(dot)
     )
     return torch.rad2deg(torch.acos(cos.clamp(-1.0, 1.0)))
 
 
+def angular_error_deg(preds: Tensor, target: Tensor) -> Tensor:
+    """Angle between (B, 3, H, W) vectors in degrees, (B, H, W); cosine clamped to [-1, 1]."""
+    return _angle_deg(preds, target, dim=1)
+
+
 def gravity_angular_error_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
     """(sum of per-image mean angular errors in degrees, number of images with a valid pixel)."""
     _check_vector_inputs(preds, target, mask)
-    valid = mask.bool() & (target.to(torch.float64).norm(dim=1) > ZERO_LENGTH_EPS)
-    return _per_image_mean(angular_error_deg(preds, target), valid)
+    p, g, image = _gather(preds, target, mask)
+    keep = g.norm(dim=1) > ZERO_LENGTH_EPS
+    return _per_image_mean(_angle_deg(p[keep], g[keep], dim=1), image[keep], preds.shape[0])
 
 
 def gravity_magnitude_error_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
     """(sum of per-image mean | |p| - |g| | in N, number of images with an object pixel)."""
     _check_vector_inputs(preds, target, mask)
-    err = (preds.to(torch.float64).norm(dim=1) - target.to(torch.float64).norm(dim=1)).abs()
-    return _per_image_mean(err, mask.bool())
+    p, g, image = _gather(preds, target, mask)
+    return _per_image_mean((p.norm(dim=1) - g.norm(dim=1)).abs(), image, preds.shape[0])
 
 
 def scene_flow_epe_update(preds: Tensor, target: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
     """(sum of per-image mean endpoint error |p - g| in m, number of images with an object pixel)."""
     _check_vector_inputs(preds, target, mask)
-    err = (preds.to(torch.float64) - target.to(torch.float64)).norm(dim=1)
-    return _per_image_mean(err, mask.bool())
+    p, g, image = _gather(preds, target, mask)
+    return _per_image_mean((p - g).norm(dim=1), image, preds.shape[0])
 
 
 def gravity_angular_error(preds: Tensor, target: Tensor, mask: Tensor) -> Tensor:

@@ -9,7 +9,7 @@ test on ``test`` and ``test_ood_gravity`` with the best checkpoint ->
 
 ``metrics.json`` holds, besides the run's identity: the probe's metrics per
 split (``val``, ``test``, ``test_ood_gravity``); ``baselines`` (split ->
-baseline -> metric -> value, for ``train`` too); ``best_baseline`` (split ->
+baseline -> metric -> value, for the same splits); ``best_baseline`` (split ->
 metric -> name and value); ``skill`` (split -> metric -> skill over the best
 baseline, and their ``mean``); ``baseline_fit`` (the fitted constants) and
 ``decision`` (the calibrated collision threshold).
@@ -116,13 +116,13 @@ class ProbeComponents:
 
 
 def fit_baselines(task: Task, datamodule: ProbeDataModule, seed: int) -> BaselineResults:
-    """The task's trivial baselines fitted on train and scored on every split (targets only, no features)."""
+    """The task's trivial baselines fitted on train, scored on val and the test splits (targets only)."""
     key = task.target_key
     return evaluate_baselines(
         task.name,
         task.metrics,
         datamodule.target_batches(schema.Split.TRAIN.value, key),
-        {split: datamodule.target_batches(split, key) for split in schema.SPLITS},
+        {split: datamodule.target_batches(split, key) for split in ("val", *EVAL_SPLITS)},
         seed=seed,
     )
 
