@@ -32,7 +32,7 @@ PAN_FOV_FRACTION = 0.6  # pan half-angle <= this x half the horizontal field of 
 MAX_JITTER_FRACTION = 0.05  # handheld jitter amplitude <= this x camera-target distance
 HANDHELD_FREQS_HZ = (0.2, 1.5)  # range of the jitter sinusoids' frequencies
 HANDHELD_TERMS = 3  # sinusoids per axis
-MAX_PITCH_DEG = 85.0  # steepest downward view: looking straight down leaves the image's up direction undefined
+MAX_PITCH_DEG = 85.0  # steepest downward view: straight down leaves the image's up direction undefined
 MAX_ROLL_DEG = 45.0  # largest tilt of the horizon
 
 
@@ -89,7 +89,10 @@ class CameraPathSpec:
             )
         max_roll = np.deg2rad(MAX_ROLL_DEG)
         if not (np.isfinite(self.roll_rad) and abs(self.roll_rad) <= max_roll + 1e-12):
-            raise ValueError(f"roll_rad must be in [-{max_roll:.4f}, {max_roll:.4f}] rad (+-{MAX_ROLL_DEG:g} deg), got {self.roll_rad}")
+            raise ValueError(
+                f"roll_rad must be in [-{max_roll:.4f}, {max_roll:.4f}] rad (+-{MAX_ROLL_DEG:g} deg), "
+                f"got {self.roll_rad}"
+            )
         if not self.pan_period_s > 0.0:
             raise ValueError(f"pan_period_s must be > 0 s, got {self.pan_period_s}")
         dist = float(np.hypot(self.radius_m, self.height_m))

@@ -256,7 +256,8 @@ def evaluate_baselines(
     try:
         baselines = BASELINES[task_name]()
     except KeyError:
-        raise ValueError(f"no trivial baselines for task {task_name!r}; known: {', '.join(BASELINES)}") from None
+        known = ", ".join(BASELINES)
+        raise ValueError(f"no trivial baselines for task {task_name!r}; known: {known}") from None
     for target, mask in train:
         baselines.update(target, mask)
     prototype = metrics_factory()
@@ -273,7 +274,8 @@ def evaluate_baselines(
                 for metric in per_baseline[name].values():
                     metric.update(pred, target, mask)
         results.scores[split] = {
-            name: {k: float(m.compute()) for k, m in metrics.items()} for name, metrics in per_baseline.items()
+            name: {k: float(m.compute()) for k, m in metrics.items()}
+            for name, metrics in per_baseline.items()
         }
         results.best[split] = _best(results.scores[split], prototype)
     return results

@@ -247,13 +247,17 @@ class ProbeDataModule(L.LightningDataModule):
             self.split_dir(split), clip_length=1, targets=self.targets, image_size=self.image_size
         )
         index = {(c.shard, c.sequence_id, c.start): i for i, c in enumerate(frames.clips)}
-        return Subset(frames, [index[(c.shard, c.sequence_id, c.start + clips.span - 1)] for c in clips.clips])
+        last = clips.span - 1
+        return Subset(frames, [index[(c.shard, c.sequence_id, c.start + last)] for c in clips.clips])
 
     def target_batches(self, split: str, key: str) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
         """(target ``key``, object mask) batches of the clips of a split, in a fixed order: what trivial
         baselines are fitted and scored on (:mod:`probes.baselines`)."""
         loader = DataLoader(
-            self.last_frames(split), batch_size=self.eval_batch_size, shuffle=False, num_workers=self.num_workers
+            self.last_frames(split),
+            batch_size=self.eval_batch_size,
+            shuffle=False,
+            num_workers=self.num_workers,
         )
         for batch in loader:
             yield batch[key], batch["object_mask"]

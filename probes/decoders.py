@@ -70,7 +70,9 @@ def start_from_constant(layer: nn.Conv2d, bias: Tensor) -> None:
     """Zero the output layer's weights and set its bias: the head then predicts ``bias`` everywhere."""
     bias = torch.as_tensor(bias, dtype=layer.weight.dtype).reshape(-1)
     if bias.numel() != layer.out_channels:
-        raise ValueError(f"bias must hold {layer.out_channels} values (one per output channel), got {bias.numel()}")
+        raise ValueError(
+            f"bias must hold {layer.out_channels} values (one per output channel), got {bias.numel()}"
+        )
     with torch.no_grad():
         layer.weight.zero_()
         if layer.bias is None:

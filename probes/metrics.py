@@ -84,7 +84,8 @@ def _per_image_mean(err: Tensor, image: Tensor, num_images: int) -> tuple[Tensor
     Returns (sum of per-image means, count of images) as float64 scalars.
     """
     n = torch.bincount(image, minlength=num_images).to(torch.float64)
-    s = torch.zeros(num_images, dtype=torch.float64, device=err.device).index_add_(0, image, err.to(torch.float64))
+    s = torch.zeros(num_images, dtype=torch.float64, device=err.device)
+    s.index_add_(0, image, err.to(torch.float64))
     has = n > 0
     means = s[has] / n[has]
     return means.sum(), has.sum().to(torch.float64)
@@ -157,7 +158,8 @@ def collision_f1(
 
 
 def _angle_deg(p: Tensor, g: Tensor, dim: int) -> Tensor:
-    """Angle between vectors along ``dim`` in degrees (float64); cosine clamped to [-1, 1]; 90 deg for a zero vector."""
+    """Angle between vectors along ``dim`` in degrees (float64); cosine clamped to [-1, 1]; 90 degrees
+    for a zero vector."""
     p = p.to(torch.float64)
     g = g.to(torch.float64)
     dot = (p * g).sum(dim)

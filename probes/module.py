@@ -88,7 +88,9 @@ class ProbeModule(L.LightningModule):
         reference: dict[str, float] | None = None,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters(ignore=["backbone", "decoder", "task", "optimizer", "scheduler", "reference"])
+        self.save_hyperparameters(
+            ignore=["backbone", "decoder", "task", "optimizer", "scheduler", "reference"]
+        )
         self.backbone = backbone
         for p in self.backbone.parameters():
             p.requires_grad_(False)
@@ -158,7 +160,9 @@ class ProbeModule(L.LightningModule):
                 collections.append(self.calibration)
         for collection in collections:
             if len(collection):
-                self.log_dict(collection, on_step=False, on_epoch=True, batch_size=bs, add_dataloader_idx=False)
+                self.log_dict(
+                    collection, on_step=False, on_epoch=True, batch_size=bs, add_dataloader_idx=False
+                )
         return loss
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> Tensor:

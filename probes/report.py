@@ -158,7 +158,9 @@ def build_rows(runs: list[dict[str, Any]]) -> list[Row]:
     rows = []
     for key in sorted(cells, key=order):
         values = {c.title: _mean(cells[key].get(c.title)) for c in COLUMNS}
-        row_skills = None if key[0] == BASELINE_GROUP else {c.title: _mean(skills[key].get(c.title)) for c in COLUMNS}
+        row_skills = (
+            None if key[0] == BASELINE_GROUP else {c.title: _mean(skills[key].get(c.title)) for c in COLUMNS}
+        )
         rows.append(Row(key[0], key[1], key[2], values, len(counts[key]), row_skills))
     return rows
 

@@ -198,7 +198,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         test_results = trainer.test(model, datamodule=datamodule, ckpt_path=best, verbose=False)
         metrics = _results(parts, [*val_results, *test_results], trainer, best)
         for lg in loggers:  # baselines and skill as their own series next to the probe's metrics
-            lg.log_metrics(_flat_baselines_and_skill(parts.baselines, metrics["skill"]), step=trainer.global_step)
+            flat = _flat_baselines_and_skill(parts.baselines, metrics["skill"])
+            lg.log_metrics(flat, step=trainer.global_step)
             lg.save()
     finally:
         _finish_wandb(loggers)
@@ -228,7 +229,9 @@ def _results(
         "epochs": int(trainer.current_epoch),
         "global_step": int(trainer.global_step),
         **{split: _finite_or_none(values) for split, values in probe.items()},
-        "baselines": {split: {n: _finite_or_none(v) for n, v in by.items()} for split, by in base.scores.items()},
+        "baselines": {
+            split: {n: _finite_or_none(v) for n, v in by.items()} for split, by in base.scores.items()
+        },
         "best_baseline": base.best,
         "skill": {split: _finite_or_none(base.skill(split, values)) for split, values in probe.items()},
         "baseline_fit": base.fitted,
@@ -236,7 +239,9 @@ def _results(
     }
 
 
-def _flat_baselines_and_skill(base: BaselineResults, skills: dict[str, dict[str, float | None]]) -> dict[str, float]:
+def _flat_baselines_and_skill(
+    base: BaselineResults, skills: dict[str, dict[str, float | None]]
+) -> dict[str, float]:
     """``baseline/<split>/<name>/<metric>`` and ``skill/<split>/<metric>`` -> finite values, for loggers."""
     flat = {
         f"baseline/{split}/{name}/{metric}": value
@@ -244,7 +249,9 @@ def _flat_baselines_and_skill(base: BaselineResults, skills: dict[str, dict[str,
         for name, values in by.items()
         for metric, value in values.items()
     }
-    flat.update({f"skill/{split}/{metric}": v for split, values in skills.items() for metric, v in values.items()})
+    flat.update(
+        {f"skill/{split}/{metric}": v for split, values in skills.items() for metric, v in values.items()}
+    )
     return {k: float(v) for k, v in flat.items() if v is not None and math.isfinite(v)}
 
 

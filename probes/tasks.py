@@ -70,7 +70,9 @@ TASK_SPECS: dict[str, TaskSpec] = {
     s.name: s
     for s in (
         TaskSpec("collision", schema.COLLISION, 1, "bool", ("collision_f1",)),
-        TaskSpec("gravity", schema.GRAVITY, 3, "N", ("gravity_angular_error_deg", "gravity_magnitude_error_n")),
+        TaskSpec(
+            "gravity", schema.GRAVITY, 3, "N", ("gravity_angular_error_deg", "gravity_magnitude_error_n")
+        ),
         TaskSpec("scene_flow", schema.SCENE_FLOW, 3, "m", ("scene_flow_epe_m",)),
     )
 }
@@ -78,7 +80,7 @@ TASK_NAMES: tuple[str, ...] = tuple(TASK_SPECS)
 
 
 def _norm(v: Tensor) -> Tensor:
-    """L2 norm over channels of (B, 3, H, W); the small floor under the sqrt keeps the gradient finite at 0."""
+    """L2 norm over channels of (B, 3, H, W); the floor under the sqrt keeps the gradient finite at 0."""
     return torch.sqrt((v * v).sum(1) + 1e-12)
 
 
@@ -125,7 +127,7 @@ class Task:
         return BASELINES[self.name]()
 
     def output_bias(self, fitted: dict) -> Tensor:
-        """Head output (``out_channels``,) that predicts the train constant of ``TrivialBaselines.fitted()``."""
+        """Head output (``out_channels``,) predicting the train constant of ``TrivialBaselines.fitted()``."""
         raise NotImplementedError
 
     # Decision parameters beyond the head (a collision threshold): chosen on validation, kept in checkpoints.
@@ -224,7 +226,9 @@ class GravityTask(Task):
         g = target / self.target_scale_n
         norm_p, norm_g = _norm(output), _norm(g)
         # chord between unit vectors: 2 sin(angle / 2)
-        chord = _norm(output / norm_p.clamp_min(UNIT_EPS).unsqueeze(1) - g / norm_g.clamp_min(UNIT_EPS).unsqueeze(1))
+        unit_p = output / norm_p.clamp_min(UNIT_EPS).unsqueeze(1)
+        unit_g = g / norm_g.clamp_min(UNIT_EPS).unsqueeze(1)
+        chord = _norm(unit_p - unit_g)
         log_ratio = torch.log(norm_p + LOG_MAGNITUDE_EPS) - torch.log(norm_g + LOG_MAGNITUDE_EPS)
         per_pixel = chord + self.magnitude_weight * log_ratio.abs()
         return _masked_mean(per_pixel, mask)
