@@ -236,7 +236,9 @@ class CollisionF1(Metric):
         if zero_division not in (0.0, 1.0):
             raise ValueError(f"zero_division must be 0.0 or 1.0, got {zero_division!r}")
         self.zero_division = float(zero_division)
-        self.thresholds = None if thresholds is None else _check_thresholds(torch.as_tensor(thresholds))
+        self.thresholds = (
+            None if thresholds is None else _check_thresholds(torch.as_tensor(thresholds, dtype=torch.float64))
+        )
         shape = () if self.thresholds is None else (len(self.thresholds),)
         for name in ("tp", "fp", "fn"):
             self.add_state(name, default=torch.zeros(shape, dtype=torch.float64), dist_reduce_fx="sum")
