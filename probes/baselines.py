@@ -14,13 +14,16 @@ collision     train_rate      contact with the train positive rate (a Bernoulli 
 gravity       constant        train mean direction x train median magnitude (N)
 scene_flow    zero            no motion
 scene_flow    mean            train mean flow vector (m)
+scene_flow    median          train geometric median flow (m): the constant of least endpoint error
 ============  ==============  ==================================================================
 
 Fitting pools the object pixels of the last frame of every train clip, as sums
 and counts: the mean direction is the normalised sum of unit gravity vectors,
 the median magnitude the (lower) weighted median of a table of distinct
 magnitudes and their pixel counts (one object has one gravity magnitude), the
-positive rate and the mean flow are sums over counts.
+positive rate and the mean flow are sums over counts; the geometric median
+of the flow (Weiszfeld) runs on up to ``FLOW_SAMPLES_PER_IMAGE`` object pixels
+per train image.
 
 Skill of a probe over the best baseline of the same split, per metric::
 
@@ -150,29 +153,63 @@ class GravityBaselines(TrivialBaselines):
         return {"constant": vector.view(1, 3, 1, 1).expand_as(target).clone()}
 
 
+def geometric_median(points: Tensor, iterations: int = 200, eps: float = 1e-9) -> Tensor:
+    """Point minimising the summed Euclidean distance to ``points`` (N, D) (Weiszfeld's iteration; distances
+    are floored at ``eps`` so a median on a data point -- e.g. at rest, 0 -- is reached, not divided by)."""
+    x = points.mean(0)
+    for _ in range(iterations):
+        w = 1.0 / (points - x).norm(dim=1).clamp_min(eps)
+        x_new = (points * w[:, None]).sum(0) / w.sum()
+        if float((x_new - x).norm()) <= eps:
+            return x_new
+        x = x_new
+    return x
+
+
+FLOW_SAMPLES_PER_IMAGE = 256
+"""Object pixels per train image (evenly spaced in raster order) kept for the geometric median."""
+
+
 class SceneFlowBaselines(TrivialBaselines):
-    names = ("zero", "mean")
+    names = ("zero", "mean", "median")
 
     def __init__(self) -> None:
         self.total = torch.zeros(3, dtype=torch.float64)
         self.count = torch.zeros((), dtype=torch.float64)
+        self.samples: list[Tensor] = []
 
     def update(self, target: Tensor, mask: Tensor) -> None:
         m = mask.bool()
         self.total += target.movedim(1, -1)[m].to(torch.float64).sum(0).cpu()
         self.count += m.sum().to(torch.float64).cpu()
+        for flow, mi in zip(target, m):  # loop over images
+            v = flow.movedim(0, -1)[mi].to(torch.float64).cpu()
+            if len(v) > FLOW_SAMPLES_PER_IMAGE:
+                v = v[torch.linspace(0, len(v) - 1, FLOW_SAMPLES_PER_IMAGE).round().long()]
+            self.samples.append(v)
 
     @property
     def mean_m(self) -> Tensor:
         self._need_pixels(self.count)
         return self.total / self.count
 
+    @property
+    def median_m(self) -> Tensor:
+        """Geometric median of the sampled train flow: the constant with the smallest endpoint error."""
+        self._need_pixels(self.count)
+        return geometric_median(torch.cat(self.samples))
+
     def fitted(self) -> dict[str, Any]:
-        return {"mean_flow_m": self.mean_m.tolist()}
+        return {"mean_flow_m": self.mean_m.tolist(), "median_flow_m": self.median_m.tolist()}
 
     def predictions(self, target: Tensor, mask: Tensor, generator: torch.Generator) -> dict[str, Tensor]:
         mean = self.mean_m.to(target.device, target.dtype).view(1, 3, 1, 1)
-        return {"zero": torch.zeros_like(target), "mean": mean.expand_as(target).clone()}
+        median = self.median_m.to(target.device, target.dtype).view(1, 3, 1, 1)
+        return {
+            "zero": torch.zeros_like(target),
+            "mean": mean.expand_as(target).clone(),
+            "median": median.expand_as(target).clone(),
+        }
 
 
 BASELINES: dict[str, type[TrivialBaselines]] = {
@@ -189,6 +226,7 @@ BASELINE_LABELS: dict[str, str] = {
     "constant": "gravity: train mean direction x median magnitude",
     "zero": "flow: zero",
     "mean": "flow: train mean",
+    "median": "flow: train geometric median",
 }
 """How tables name each baseline."""
 

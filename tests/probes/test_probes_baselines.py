@@ -14,6 +14,7 @@ from probes.baselines import (
     GravityBaselines,
     SceneFlowBaselines,
     evaluate_baselines,
+    geometric_median,
     skill,
     weighted_lower_median,
 )
@@ -102,12 +103,26 @@ def test_scene_flow_zero_and_mean_hand_values():
     res = _evaluate("scene_flow", [(f, mask)], {"val": [(f, mask)]})
     mean = np.array([0.06, -0.04, 0.0]) / 3
     np.testing.assert_allclose(res.fitted["mean_flow_m"], mean, atol=1e-12)
+    # geometric median of three points: the pixel at (0.03, 0, 0) twice and (0, -0.04, 0) once -> the repeated point
+    np.testing.assert_allclose(res.fitted["median_flow_m"], [0.03, 0.0, 0.0], atol=1e-7)
     s = res.scores["val"]
     assert s["zero"]["scene_flow_epe_m"] == pytest.approx((0.03 + 0.04) / 2)
+    assert s["median"]["scene_flow_epe_m"] == pytest.approx((0.0 + 0.05) / 2, rel=1e-5)  # |(-0.03, -0.04, 0)|
     e0 = np.linalg.norm(np.array([0.03, 0, 0]) - mean)
     e1 = np.linalg.norm(np.array([0, -0.04, 0]) - mean)
     assert s["mean"]["scene_flow_epe_m"] == pytest.approx((e0 + e1) / 2)
     assert res.best["val"]["scene_flow_epe_m"]["baseline"] == "mean"
+
+
+def test_geometric_median_hand_values():
+    collinear = torch.tensor([[0.0, 0, 0], [1.0, 0, 0], [5.0, 0, 0]], dtype=torch.float64)
+    np.testing.assert_allclose(geometric_median(collinear).numpy(), [1.0, 0, 0], atol=1e-7)
+    # a majority at rest pulls the median onto 0 exactly, whatever the movers do
+    resting = torch.tensor([[0.0, 0, 0]] * 3 + [[0.05, 0, 0], [0, 0.08, 0]], dtype=torch.float64)
+    np.testing.assert_allclose(geometric_median(resting).numpy(), [0.0, 0, 0], atol=1e-7)
+    # a square's corners: the centre
+    square = torch.tensor([[0.0, 0], [2.0, 0], [0.0, 2], [2.0, 2]], dtype=torch.float64)
+    np.testing.assert_allclose(geometric_median(square).numpy(), [1.0, 1.0], atol=1e-7)
 
 
 def test_skill_hand_values_and_missing_inputs():

@@ -106,7 +106,8 @@ def test_heads_start_from_the_train_constant(decoder, task_name):
         "positive_rate": 0.2,
         "direction": [0.0, 0.6, 0.8],
         "median_magnitude_n": 4.0,
-        "mean_flow_m": [0.001, 0.0, -0.002],
+        "mean_flow_m": [0.5, 0.5, 0.5],
+        "median_flow_m": [0.001, 0.0, -0.002],  # the head starts from the median (least endpoint error)
     }
     bias = task.output_bias(fitted)
     assert bias.shape == (task.out_channels,)
