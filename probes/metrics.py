@@ -33,10 +33,10 @@ Averaging
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 from torchmetrics import Metric
 
 ZERO_LENGTH_EPS: float = 1e-8
@@ -236,9 +236,9 @@ class CollisionF1(Metric):
         if zero_division not in (0.0, 1.0):
             raise ValueError(f"zero_division must be 0.0 or 1.0, got {zero_division!r}")
         self.zero_division = float(zero_division)
-        self.thresholds = (
-            None if thresholds is None else _check_thresholds(torch.as_tensor(thresholds, dtype=torch.float64))
-        )
+        self.thresholds = None
+        if thresholds is not None:
+            self.thresholds = _check_thresholds(torch.as_tensor(thresholds, dtype=torch.float64))
         shape = () if self.thresholds is None else (len(self.thresholds),)
         for name in ("tp", "fp", "fn"):
             self.add_state(name, default=torch.zeros(shape, dtype=torch.float64), dist_reduce_fx="sum")
@@ -306,3 +306,52 @@ class SceneFlowEPE(_PerImageMeanMetric):
     """Average endpoint error of scene flow, m."""
 
     _update_fn = staticmethod(scene_flow_epe_update)
+
+
+class ParameterSweep(Metric):
+    """One metric evaluated at every value of a decision parameter: how a task calibrates on validation.
+
+    ``predict_at(scores, value)`` turns what the task hands over (its raw head output, say) into the
+    metric's predictions for one parameter value; each value keeps its own metric (sums and counts).
+    ``compute`` gives the best value over the grid (direction from the metric), :meth:`best_parameter`
+    the parameter that reaches it (the lowest one of ties).
+    """
+
+    is_differentiable = False
+    full_state_update = False
+
+    def __init__(
+        self,
+        metric_factory: Callable[[], Metric],
+        predict_at: Callable[[Tensor, float], Tensor],
+        grid: Sequence[float],
+        **kwargs,
+    ) -> None:
+        super().__init__(**kwargs)
+        if len(grid) == 0:
+            raise ValueError("grid must hold at least one parameter value")
+        self.grid = tuple(float(v) for v in grid)
+        self.predict_at = predict_at
+        self.sweep = nn.ModuleList(metric_factory() for _ in self.grid)
+        self.maximize = bool(self.sweep[0].higher_is_better)
+
+    def update(self, scores: Tensor, target: Tensor, mask: Tensor) -> None:
+        for value, metric in zip(self.grid, self.sweep):
+            metric.update(self.predict_at(scores, value), target, mask)
+
+    def values(self) -> Tensor:
+        """The metric at every grid value (float64)."""
+        return torch.stack([m.compute().to(torch.float64).reshape(()) for m in self.sweep])
+
+    def best_parameter(self) -> float:
+        v = self.values()
+        v = torch.where(torch.isnan(v), torch.tensor(-math.inf if self.maximize else math.inf), v)
+        return self.grid[int(torch.argmax(v) if self.maximize else torch.argmin(v))]
+
+    def compute(self) -> Tensor:
+        return self.values()[self.grid.index(self.best_parameter())]
+
+    def reset(self) -> None:
+        super().reset()
+        for metric in self.sweep:
+            metric.reset()

@@ -9,10 +9,11 @@
 * The frozen backbone is never trained and never checkpointed: its weights
   are dropped from the state dict on save; the checkpoint holds the decoder
   weights plus the backbone's name / config in ``hyper_parameters``, and the
-  task's decision parameters (``task_decision``: the collision threshold).
+  task's decision parameters (``task_decision``: the collision threshold, trusts).
 * Validation calibrates the task's decision (:meth:`Task.calibrate`: the
-  collision threshold with the best val F1) at the end of every epoch, so the
-  checkpoint saved for that epoch carries the threshold its score was measured
+  collision threshold with the best val F1, the regression tasks' trust in
+  their departure from the train constant) at the end of every epoch, so the
+  checkpoint saved for that epoch carries the decision its score was measured
   with.
 * Given ``reference`` (the best trivial baseline of val per metric,
   :mod:`probes.baselines`), validation also logs ``val/skill``: the mean over

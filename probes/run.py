@@ -12,7 +12,7 @@ split (``val``, ``test``, ``test_ood_gravity``); ``baselines`` (split ->
 baseline -> metric -> value, for the same splits); ``best_baseline`` (split ->
 metric -> name and value); ``skill`` (split -> metric -> skill over the best
 baseline, and their ``mean``); ``baseline_fit`` (the fitted constants) and
-``decision`` (the calibrated collision threshold).
+``decision`` (the calibrated collision threshold or trusts, :mod:`probes.tasks`).
 """
 
 from __future__ import annotations
@@ -149,7 +149,9 @@ def build(cfg: DictConfig) -> ProbeComponents:
     )
     if callable(decoder) and not isinstance(decoder, torch.nn.Module):  # a _partial_ config
         decoder = decoder()
-    decoder.start_from_constant(task.output_bias(baselines.fitted))  # training starts at the train constant
+    constant = task.output_bias(baselines.fitted)
+    decoder.start_from_constant(constant)  # training starts at the train constant ...
+    task.set_anchor(constant)  # ... and validation can shrink the probe back toward it (Task.calibrate)
     num_params = count_parameters(decoder)
     log.info("decoder %s: %d trainable parameters", type(decoder).__name__, num_params)
 

@@ -17,6 +17,17 @@ constant ends).
   ``CALIBRATION_THRESHOLDS`` with the best F1, :meth:`Task.calibrate`) and
   travels in checkpoints. With rare contacts, F1 rewards recall: an
   uninformed probe at 0.5 scored below predicting contact everywhere.
+Calibration on validation (:meth:`Task.calibrate`, after every validation
+epoch; the chosen values travel in checkpoints and ``metrics.json``'s
+``decision``): a decision threshold for collision, and for the regression
+tasks a *trust* per output in ``TRUST_GRID``: the share of the head's
+departure from the train constant that is kept (gravity: direction and log
+magnitude separately; flow: the vector). Trust 0 is the constant itself, so a
+head whose departures are noise (a linear probe on random features fits
+them within an epoch) falls back to its bias instead of scoring below it; the
+validation metrics and ``val/skill`` are those of the calibrated prediction,
+test splits use the values chosen on validation.
+
 * ``gravity`` -- 3 channels, the gravity force in N in the camera frame,
   predicted as ``force / target_scale_n``. Loss = direction term
   ``|p/|p| - g/|g||`` (chord between unit vectors, = 2 sin(angle / 2), about
@@ -51,6 +62,8 @@ UNIT_EPS: float = 1e-8
 """Norms (in units of the task scale) are clamped to at least this before dividing by them."""
 CALIBRATION_THRESHOLDS: tuple[float, ...] = tuple(i / 100 for i in range(100))
 """Contact-probability thresholds tried on validation (0 predicts contact on every pixel)."""
+TRUST_GRID: tuple[float, ...] = tuple(i / 10 for i in range(11))
+"""Shares of the probe's departure from the train constant tried on validation (0: the constant)."""
 
 
 @dataclass(frozen=True)
@@ -130,7 +143,13 @@ class Task:
         """Head output (``out_channels``,) predicting the train constant of ``TrivialBaselines.fitted()``."""
         raise NotImplementedError
 
-    # Decision parameters beyond the head (a collision threshold): chosen on validation, kept in checkpoints.
+    anchor: Tensor | None = None
+    """The head output of the train constant (``output_bias``), once set: what trust shrinks toward."""
+
+    def set_anchor(self, bias: Tensor) -> None:
+        self.anchor = torch.as_tensor(bias, dtype=torch.float32).detach().clone().reshape(-1)
+
+    # Decision parameters beyond the head (threshold, trusts): chosen on validation, kept in checkpoints.
     def calibration_metrics(self) -> dict[str, Metric]:
         """Validation metrics that replace ``metrics()`` entries of the same name and pick the decision;
         they are fed :meth:`scores`. None for tasks without a decision parameter."""
@@ -221,6 +240,8 @@ class GravityTask(Task):
             raise ValueError(f"magnitude_weight must be >= 0, got {magnitude_weight}")
         self.target_scale_n = float(target_scale_n)
         self.magnitude_weight = float(magnitude_weight)
+        self.trust_direction = 1.0
+        self.trust_magnitude = 1.0
 
     def loss(self, output: Tensor, target: Tensor, mask: Tensor) -> Tensor:
         g = target / self.target_scale_n
@@ -234,7 +255,20 @@ class GravityTask(Task):
         return _masked_mean(per_pixel, mask)
 
     def predict(self, output: Tensor) -> Tensor:
-        return output * self.target_scale_n
+        return self.predict_with_trust(output, self.trust_direction, self.trust_magnitude)
+
+    def predict_with_trust(self, output: Tensor, trust_direction: float, trust_magnitude: float) -> Tensor:
+        """Force in N: the head's direction and log magnitude, each moved from the anchor's (the train
+        constant) by the given share (1: the head as it is, 0: the constant)."""
+        if self.anchor is None or (trust_direction == 1.0 and trust_magnitude == 1.0):
+            return output * self.target_scale_n
+        anchor = self.anchor.to(output).view(1, 3, 1, 1)
+        norm_o, norm_a = _norm(output).clamp_min(UNIT_EPS), _norm(anchor).clamp_min(UNIT_EPS)
+        unit_a, unit_o = anchor / norm_a.unsqueeze(1), output / norm_o.unsqueeze(1)
+        mixed = (1.0 - trust_direction) * unit_a + trust_direction * unit_o
+        unit = mixed / _norm(mixed).clamp_min(UNIT_EPS).unsqueeze(1)
+        log_m = (1.0 - trust_magnitude) * torch.log(norm_a) + trust_magnitude * torch.log(norm_o)
+        return unit * torch.exp(log_m).unsqueeze(1) * self.target_scale_n
 
     def metrics(self) -> dict[str, Metric]:
         return {
@@ -246,6 +280,30 @@ class GravityTask(Task):
         direction = torch.tensor(fitted["direction"], dtype=torch.float32)
         return direction * float(fitted["median_magnitude_n"]) / self.target_scale_n
 
+    def calibration_metrics(self) -> dict[str, Metric]:
+        return {
+            "gravity_angular_error_deg": M.ParameterSweep(
+                M.GravityAngularError, lambda out, t: self.predict_with_trust(out, t, 1.0), TRUST_GRID
+            ),
+            "gravity_magnitude_error_n": M.ParameterSweep(
+                M.GravityMagnitudeError, lambda out, t: self.predict_with_trust(out, 1.0, t), TRUST_GRID
+            ),
+        }
+
+    def scores(self, output: Tensor) -> Tensor:
+        return output
+
+    def calibrate(self, metrics: dict[str, Metric]) -> None:
+        self.trust_direction = _best_parameter(metrics["gravity_angular_error_deg"])
+        self.trust_magnitude = _best_parameter(metrics["gravity_magnitude_error_n"])
+
+    def decision(self) -> dict[str, float]:
+        return {"trust_direction": self.trust_direction, "trust_magnitude": self.trust_magnitude}
+
+    def load_decision(self, decision: dict[str, float]) -> None:
+        self.trust_direction = float(decision.get("trust_direction", self.trust_direction))
+        self.trust_magnitude = float(decision.get("trust_magnitude", self.trust_magnitude))
+
 
 class SceneFlowTask(Task):
     """3D scene flow per pixel (m, camera frame): endpoint-error loss."""
@@ -255,12 +313,20 @@ class SceneFlowTask(Task):
         if target_scale_m <= 0:
             raise ValueError(f"target_scale_m must be > 0 m, got {target_scale_m}")
         self.target_scale_m = float(target_scale_m)
+        self.trust = 1.0
 
     def loss(self, output: Tensor, target: Tensor, mask: Tensor) -> Tensor:
         return _masked_mean(_norm(output - target / self.target_scale_m), mask)
 
     def predict(self, output: Tensor) -> Tensor:
-        return output * self.target_scale_m
+        return self.predict_with_trust(output, self.trust)
+
+    def predict_with_trust(self, output: Tensor, trust: float) -> Tensor:
+        """Flow in m: the anchor (train constant) plus ``trust`` x the head's departure from it."""
+        if self.anchor is None or trust == 1.0:
+            return output * self.target_scale_m
+        anchor = self.anchor.to(output).view(1, 3, 1, 1)
+        return (anchor + trust * (output - anchor)) * self.target_scale_m
 
     def metrics(self) -> dict[str, Metric]:
         return {"scene_flow_epe_m": M.SceneFlowEPE()}
@@ -268,6 +334,27 @@ class SceneFlowTask(Task):
     def output_bias(self, fitted: dict) -> Tensor:
         # the constant of least endpoint error (on generated data half the object pixels rest: it is 0)
         return torch.tensor(fitted["median_flow_m"], dtype=torch.float32) / self.target_scale_m
+
+    def calibration_metrics(self) -> dict[str, Metric]:
+        return {"scene_flow_epe_m": M.ParameterSweep(M.SceneFlowEPE, self.predict_with_trust, TRUST_GRID)}
+
+    def scores(self, output: Tensor) -> Tensor:
+        return output
+
+    def calibrate(self, metrics: dict[str, Metric]) -> None:
+        self.trust = _best_parameter(metrics["scene_flow_epe_m"])
+
+    def decision(self) -> dict[str, float]:
+        return {"trust": self.trust}
+
+    def load_decision(self, decision: dict[str, float]) -> None:
+        self.trust = float(decision.get("trust", self.trust))
+
+
+def _best_parameter(metric: Metric) -> float:
+    if not isinstance(metric, M.ParameterSweep):
+        raise TypeError(f"calibration needs a ParameterSweep, got {type(metric).__name__}")
+    return metric.best_parameter()
 
 
 _TASK_CLASSES: dict[str, type[Task]] = {

@@ -205,3 +205,57 @@ def test_collision_task_calibrates_its_threshold_on_scores():
     other = build_task("collision")
     other.load_decision(task.decision())
     assert torch.equal(other.predict(logits), target.bool())
+
+
+# --------------------------------------------------------------------------- #
+def test_gravity_trust_moves_direction_and_log_magnitude_from_the_anchor():
+    task = build_task("gravity", target_scale_n=10.0)
+    task.set_anchor(torch.tensor([0.0, 0.0, -0.2]))  # the train constant: 2 N straight down (-z)
+    out = torch.tensor([0.8, 0.0, 0.0]).view(1, 3, 1, 1)  # the head: 8 N along +x
+    np.testing.assert_allclose(task.predict_with_trust(out, 1.0, 1.0).flatten(), [8.0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(task.predict_with_trust(out, 0.0, 0.0).flatten(), [0, 0, -2.0], atol=1e-6)
+    # half trust: the unit vectors' normalised mean (45 deg) and the geometric mean of 2 N and 8 N (4 N)
+    half = task.predict_with_trust(out, 0.5, 0.5).flatten()
+    np.testing.assert_allclose(half, 4.0 * np.array([1.0, 0.0, -1.0]) / np.sqrt(2), atol=1e-5)
+    # direction and magnitude are trusted separately
+    np.testing.assert_allclose(task.predict_with_trust(out, 1.0, 0.0).flatten(), [2.0, 0, 0], atol=1e-6)
+    task.load_decision({"trust_direction": 0.0, "trust_magnitude": 1.0})
+    np.testing.assert_allclose(task.predict(out).flatten(), [0, 0, -8.0], atol=1e-5)
+
+
+def test_calibration_trusts_a_head_that_helps_and_not_one_that_is_noise():
+    gen = torch.Generator().manual_seed(0)
+    target = torch.zeros(4, 3, 5, 5)
+    target[:, 2] = -torch.tensor([2.0, 4.0, 6.0, 8.0]).view(4, 1, 1)  # four objects, 2-8 N, all along -z
+    mask = torch.ones(4, 5, 5, dtype=torch.bool)
+    task = build_task("gravity", target_scale_n=10.0)
+    task.set_anchor(torch.tensor([0.0, 0.0, -0.5]))  # the median, 5 N down
+    # the head: exact magnitudes, but a direction tilted at random by up to ~40 deg
+    out = target / 10.0 + torch.cat([torch.rand(4, 2, 5, 5, generator=gen) - 0.5, torch.zeros(4, 1, 5, 5)], 1)
+    out = out * (target.norm(dim=1, keepdim=True) / 10.0) / out.norm(dim=1, keepdim=True)
+    metrics = task.calibration_metrics()
+    for m in metrics.values():
+        m.update(task.scores(out), target, mask)
+    task.calibrate(metrics)
+    assert task.decision() == {"trust_direction": 0.0, "trust_magnitude": 1.0}
+    assert metrics["gravity_angular_error_deg"].compute().item() == pytest.approx(0.0, abs=1e-3)
+    assert metrics["gravity_magnitude_error_n"].compute().item() == pytest.approx(0.0, abs=1e-4)
+    # every grid value is scored like the plain metric on that prediction
+    sweep = metrics["gravity_magnitude_error_n"]
+    for t, value in zip(sweep.grid, sweep.values()):
+        expected = M.gravity_magnitude_error(task.predict_with_trust(out, 1.0, t), target, mask)
+        assert value.item() == pytest.approx(expected.item(), rel=1e-12)
+
+
+def test_scene_flow_trust_shrinks_toward_the_anchor():
+    task = build_task("scene_flow", target_scale_m=0.01)
+    task.set_anchor(torch.tensor([0.0, 0.0, 0.0]))
+    out = torch.tensor([2.0, 0.0, 0.0]).view(1, 3, 1, 1)  # 2 cm along x
+    np.testing.assert_allclose(task.predict_with_trust(out, 0.3).flatten(), [0.006, 0, 0], atol=1e-9)
+    target = torch.tensor([0.005, 0.0, 0.0]).view(1, 3, 1, 1)  # the truth: 5 mm
+    sweep = task.calibration_metrics()["scene_flow_epe_m"]
+    sweep.update(task.scores(out), target, torch.ones(1, 1, 1, dtype=torch.bool))
+    task.calibrate({"scene_flow_epe_m": sweep})
+    assert task.decision() == {"trust": pytest.approx(0.2)} and sweep.compute().item() == pytest.approx(0.001)
+    with pytest.raises(ValueError, match="at least one"):
+        M.ParameterSweep(M.SceneFlowEPE, task.predict_with_trust, ())

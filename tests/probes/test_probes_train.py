@@ -101,6 +101,10 @@ def test_run_writes_checkpoint_wandb_files_and_metrics(
             1.0 - mag / base["gravity_magnitude_error_n"]
         )
     assert set(metrics["baselines"]) == {"val", "test", "test_ood_gravity"}
+    # calibrated on val (trust 0 = the train constant is on the grid): at least the constant there
+    assert metrics["skill"]["val"]["gravity_angular_error_deg"] >= -1e-6
+    assert metrics["skill"]["val"]["gravity_magnitude_error_n"] >= -1e-6
+    assert set(metrics["decision"]) == {"trust_direction", "trust_magnitude"}
     assert metrics["monitor"] == "val/skill" and len(metrics["baseline_fit"]["direction"]) == 3
     # checkpoint: decoder weights + backbone name/config, no frozen backbone weights
     ckpt = torch.load(metrics["best_checkpoint"], map_location="cpu", weights_only=False)
