@@ -23,15 +23,8 @@ import numpy as np
 from data_gen.assets.library import get_object, list_objects
 from data_gen.assets.materials import sample_material
 from data_gen.assets.scenes import get_scene, list_scenes
-from data_gen.cameras import (
-    CAMERA_KINDS,
-    MAX_PITCH_DEG,
-    MAX_ROLL_DEG,
-    CameraPathSpec,
-    offset_from_pitch,
-    path_from_spec,
-    sample_camera_spec,
-)
+from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, path_from_spec, sample_camera_spec
+from data_gen.cameras import MAX_PITCH_DEG, MAX_ROLL_DEG, offset_from_pitch
 from newtphys import schema
 from newtphys.geometry import quat_to_matrix
 
