@@ -8,7 +8,13 @@ OpenCV convention, world Z up (``newtphys.geometry.look_at``).
 Every kind keeps ``look_target_m`` in view: static, orbit and dolly look at it;
 handheld looks at it plus a jitter bounded to a small fraction of the distance;
 pan yaws the view about the vertical by at most ``PAN_FOV_FRACTION`` of the
-half horizontal field of view.
+half horizontal field of view. Every kind can be rolled about its optical axis
+(``roll_rad``, a handheld capture's tilted horizon): the image's up direction is
+then no longer world up.
+
+Where the camera starts is set by the horizontal distance and height above the
+target (``radius_m``, ``height_m``); :func:`offset_from_pitch` turns a
+line-of-sight distance and a downward pitch into those two.
 """
 
 from __future__ import annotations
@@ -26,6 +32,8 @@ PAN_FOV_FRACTION = 0.6  # pan half-angle <= this x half the horizontal field of 
 MAX_JITTER_FRACTION = 0.05  # handheld jitter amplitude <= this x camera-target distance
 HANDHELD_FREQS_HZ = (0.2, 1.5)  # range of the jitter sinusoids' frequencies
 HANDHELD_TERMS = 3  # sinusoids per axis
+MAX_PITCH_DEG = 85.0  # steepest downward view: straight down leaves the image's up direction undefined
+MAX_ROLL_DEG = 45.0  # largest tilt of the horizon
 
 
 @dataclass(frozen=True)
@@ -37,7 +45,9 @@ class CameraPathSpec:
     ``dolly_end_ratio``: final / initial camera-target distance (linear in time).
     ``jitter_m`` and ``jitter_freqs_hz`` / ``jitter_phases_rad`` ((3, HANDHELD_TERMS)
     each, flattened) shape the handheld shake; ``pan_half_angle_rad`` and
-    ``pan_period_s`` the pan sweep (sinusoidal yaw).
+    ``pan_period_s`` the pan sweep (sinusoidal yaw). ``roll_rad`` rotates the camera about
+    its optical axis for the whole path: positive tilts the image's right edge (camera x)
+    towards world down; 0 keeps the horizon level.
     """
 
     kind: str
@@ -53,6 +63,7 @@ class CameraPathSpec:
     pan_half_angle_rad: float = 0.0
     pan_period_s: float = 4.0
     fov_x_deg: float = 60.0
+    roll_rad: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in CAMERA_KINDS:
@@ -75,6 +86,12 @@ class CameraPathSpec:
             raise ValueError(
                 f"pan_half_angle_rad must be in [0, {max_pan:.4f}] rad "
                 f"({PAN_FOV_FRACTION} x half of fov_x {self.fov_x_deg} deg), got {self.pan_half_angle_rad}"
+            )
+        max_roll = np.deg2rad(MAX_ROLL_DEG)
+        if not (np.isfinite(self.roll_rad) and abs(self.roll_rad) <= max_roll + 1e-12):
+            raise ValueError(
+                f"roll_rad must be in [-{max_roll:.4f}, {max_roll:.4f}] rad (+-{MAX_ROLL_DEG:g} deg), "
+                f"got {self.roll_rad}"
             )
         if not self.pan_period_s > 0.0:
             raise ValueError(f"pan_period_s must be > 0 s, got {self.pan_period_s}")
@@ -111,6 +128,7 @@ def sample_camera_spec(
     jitter_m: float | None = None,
     pan_half_angle_rad: float | None = None,
     pan_period_s: float = 4.0,
+    roll_rad: float = 0.0,
 ) -> CameraPathSpec:
     """Draw the random parts of a trajectory (start azimuth, orbit direction, jitter phases) from ``rng``.
 
@@ -132,6 +150,7 @@ def sample_camera_spec(
         height_m=height_m,
         azimuth_rad=azimuth,
         fov_x_deg=fov_x_deg,
+        roll_rad=roll_rad,
     )
     if kind == "orbit":
         return replace(base, orbit_rate_rad_s=direction * abs(orbit_speed_rad_s))
@@ -185,7 +204,23 @@ def path_from_spec(spec: CameraPathSpec, num_frames: int, fps: float) -> NDArray
         looks = eyes + np.stack(
             [c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1], rel[:, 2]], axis=1
         )
-    return np.stack([look_at(e, g) for e, g in zip(eyes, looks)])  # loop over frames
+    w2c = np.stack([look_at(e, g) for e, g in zip(eyes, looks)])  # loop over frames
+    if spec.roll_rad != 0.0:  # new camera axes x' = c x + s y, y' = -s x + c y: rows of world-to-camera
+        c, s = np.cos(spec.roll_rad), np.sin(spec.roll_rad)
+        roll = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        w2c[:, :3, :] = roll @ w2c[:, :3, :]
+    return w2c
+
+
+def offset_from_pitch(distance_m: float, pitch_deg: float) -> tuple[float, float]:
+    """(radius_m, height_m) of a camera ``distance_m`` from its target along a line of sight
+    ``pitch_deg`` below the horizontal (0 level, at most ``MAX_PITCH_DEG``)."""
+    if not (np.isfinite(distance_m) and distance_m > 0.0):
+        raise ValueError(f"distance_m must be > 0 m, got {distance_m}")
+    if not 0.0 <= pitch_deg <= MAX_PITCH_DEG:
+        raise ValueError(f"pitch_deg must be in [0, {MAX_PITCH_DEG:g}] deg (downward), got {pitch_deg}")
+    p = np.deg2rad(pitch_deg)
+    return float(distance_m * np.cos(p)), float(distance_m * np.sin(p))
 
 
 def camera_path(

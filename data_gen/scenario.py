@@ -26,6 +26,7 @@ from data_gen.assets.imported import check_object_reference
 from data_gen.assets.materials import sample_material
 from data_gen.assets.registry import get_object, get_scene_layout, list_objects, list_scene_layouts
 from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, path_from_spec, sample_camera_spec
+from data_gen.cameras import MAX_PITCH_DEG, MAX_ROLL_DEG, offset_from_pitch
 from newtphys import schema
 from newtphys.rotations import axis_angle_to_quat, quat_to_matrix
 
@@ -102,8 +103,14 @@ class ScenarioConfig:
     random_orientation: bool
     camera_kinds: tuple[str, ...]
     camera_distance_m: tuple[float, float]
-    """Horizontal camera-target distance at t = 0."""
+    """Camera-target distance at t = 0, m: along the line of sight when ``camera_pitch_deg`` is set,
+    horizontal (with ``camera_height_m``) when it is None."""
     camera_height_m: tuple[float, float]
+    """Camera height above the target at t = 0, m; used only when ``camera_pitch_deg`` is None."""
+    camera_pitch_deg: tuple[float, float] | None
+    """Downward angle of the line of sight at t = 0, deg: 0 level, up to MAX_PITCH_DEG (near top-down)."""
+    camera_roll_deg: tuple[float, float]
+    """Rotation about the optical axis, deg (a handheld capture's tilted horizon; 0: level)."""
     fov_x_deg: tuple[float, float]
     max_placement_tries: int
 
@@ -157,6 +164,13 @@ class ScenarioConfig:
             lo, hi = getattr(self, key)
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
                 raise ScenarioError(f"scenario '{self.name}': {key} must be a range 0 <= min <= max, got {(lo, hi)}")
+        for key, low, high in (("camera_pitch_deg", 0.0, MAX_PITCH_DEG), ("camera_roll_deg", -MAX_ROLL_DEG, MAX_ROLL_DEG)):
+            bounds = getattr(self, key)
+            if bounds is None and key == "camera_pitch_deg":  # None: placed by camera_height_m
+                continue
+            if len(bounds) != 2 or not (np.all(np.isfinite(bounds)) and low <= bounds[0] <= bounds[1] <= high):
+                raise ScenarioError(f"scenario '{self.name}': {key} must be a range {low:g} <= min <= max <= {high:g} "
+                                    f"(deg), got {tuple(bounds)}")
 
 
 def _check_names(scenario: str, kind: str, names, check_reference, catalogue: list[str], reference_hint: str) -> None:
@@ -294,13 +308,20 @@ def sample_scenario(
     target = np.mean(aims, axis=0)
     target[2] = max(0.5 * target[2], 0.05)
     for _ in range(CAMERA_TRIES):
+        kind = cfg.camera_kinds[int(rng_cam.integers(len(cfg.camera_kinds)))]
+        if cfg.camera_pitch_deg is None:
+            radius, height = _uniform(rng_cam, cfg.camera_distance_m), _uniform(rng_cam, cfg.camera_height_m)
+        else:
+            radius, height = offset_from_pitch(_uniform(rng_cam, cfg.camera_distance_m),
+                                               _uniform(rng_cam, cfg.camera_pitch_deg))
         camera = sample_camera_spec(
-            cfg.camera_kinds[int(rng_cam.integers(len(cfg.camera_kinds)))],
+            kind,
             target,
-            radius_m=_uniform(rng_cam, cfg.camera_distance_m),
-            height_m=_uniform(rng_cam, cfg.camera_height_m),
+            radius_m=radius,
+            height_m=height,
             rng=rng_cam,
             fov_x_deg=_uniform(rng_cam, cfg.fov_x_deg),
+            roll_rad=float(np.deg2rad(_uniform(rng_cam, cfg.camera_roll_deg))),
         )
         if camera_view_is_clear(scene, camera, placed, num_frames, fps):
             break

@@ -11,13 +11,13 @@ the task target, ``sequence_id``, ``frame_index`` ...) plus either
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import lightning as L
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Subset
 
 from newtphys import schema
 from newtphys.dataset import ClipDataset
@@ -231,6 +231,36 @@ class ProbeDataModule(L.LightningDataModule):
         for split in schema.SPLITS:
             if split not in self._clip_sets:
                 self._clip_sets[split] = self.build_split(split)
+
+    def clip_dataset(self, split: str) -> ClipDataset:
+        """The split's clips without backbone features (frames, targets, object masks)."""
+        ds = self._clip_sets.get(split)
+        if ds is None:
+            ds = self.datasets[split] if split in self.datasets else self.build_split(split)
+        return ds.clips if isinstance(ds, CachedFeatureDataset) else ds
+
+    def last_frames(self, split: str) -> Dataset:
+        """The last frame of every clip of a split (in clip order) as one-frame clips: its targets and object
+        mask without reading the clip's earlier frames or extracting features."""
+        clips = self.clip_dataset(split)
+        frames = ClipDataset(
+            self.split_dir(split), clip_length=1, targets=self.targets, image_size=self.image_size
+        )
+        index = {(c.shard, c.sequence_id, c.start): i for i, c in enumerate(frames.clips)}
+        last = clips.span - 1
+        return Subset(frames, [index[(c.shard, c.sequence_id, c.start + last)] for c in clips.clips])
+
+    def target_batches(self, split: str, key: str) -> Iterator[tuple[torch.Tensor, torch.Tensor]]:
+        """(target ``key``, object mask) batches of the clips of a split, in a fixed order: what trivial
+        baselines are fitted and scored on (:mod:`probes.baselines`)."""
+        loader = DataLoader(
+            self.last_frames(split),
+            batch_size=self.eval_batch_size,
+            shuffle=False,
+            num_workers=self.num_workers,
+        )
+        for batch in loader:
+            yield batch[key], batch["object_mask"]
 
     def dataset(self, split: str) -> Dataset:
         """The split's dataset, built on first use; with the cache on, missing frames are extracted first."""

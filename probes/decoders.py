@@ -12,6 +12,10 @@ differences between frames (motion) as well as appearance. This is the
 simplest fusion that can express velocity; it costs ``K`` x the first
 layer's parameters.
 
+Both heads can start from a constant (``start_from_constant``: output layer
+zero, bias = the task's train constant), so training begins at the trivial
+baseline instead of at random noise.
+
 * :class:`LinearHead` -- one 1x1 convolution over the last tapped layer
   (``layers="last"``) or over all tapped layers resized to the finest one and
   concatenated (``layers="all"``).
@@ -62,6 +66,20 @@ def count_parameters(module: nn.Module, trainable_only: bool = True) -> int:
     return sum(p.numel() for p in module.parameters() if p.requires_grad or not trainable_only)
 
 
+def start_from_constant(layer: nn.Conv2d, bias: Tensor) -> None:
+    """Zero the output layer's weights and set its bias: the head then predicts ``bias`` everywhere."""
+    bias = torch.as_tensor(bias, dtype=layer.weight.dtype).reshape(-1)
+    if bias.numel() != layer.out_channels:
+        raise ValueError(
+            f"bias must hold {layer.out_channels} values (one per output channel), got {bias.numel()}"
+        )
+    with torch.no_grad():
+        layer.weight.zero_()
+        if layer.bias is None:
+            raise ValueError("the output layer has no bias to start from")
+        layer.bias.copy_(bias.to(layer.bias.device))
+
+
 class LinearHead(nn.Module):
     """1x1 convolution over time-concatenated features, bilinearly upsampled to the target size."""
 
@@ -77,6 +95,10 @@ class LinearHead(nn.Module):
         self.layers = layers
         in_ch = num_frames * (self.feat_dims[-1] if layers == "last" else sum(self.feat_dims))
         self.proj = nn.Conv2d(in_ch, out_channels, kernel_size=1)
+
+    def start_from_constant(self, bias: Tensor) -> None:
+        """Predict ``bias`` (out_channels,) everywhere until training moves the weights."""
+        start_from_constant(self.proj, bias)
 
     def forward(self, feats: list[Tensor], out_size: tuple[int, int]) -> Tensor:
         _check_features(feats, self.feat_dims, self.num_frames)
@@ -154,6 +176,12 @@ class DPTHead(nn.Module):
             nn.ReLU(inplace=True),
             nn.Conv2d(head_width, out_channels, 1),
         )
+
+    def start_from_constant(self, bias: Tensor) -> None:
+        """Predict ``bias`` (out_channels,) everywhere until training moves the last layer's weights."""
+        last = self.head[-1]
+        assert isinstance(last, nn.Conv2d)
+        start_from_constant(last, bias)
 
     def forward(self, feats: list[Tensor], out_size: tuple[int, int]) -> Tensor:
         _check_features(feats, self.feat_dims, self.num_frames)

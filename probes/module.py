@@ -8,7 +8,18 @@
   ``test/``, ``test_ood_gravity/``).
 * The frozen backbone is never trained and never checkpointed: its weights
   are dropped from the state dict on save; the checkpoint holds the decoder
-  weights plus the backbone's name / config in ``hyper_parameters``.
+  weights plus the backbone's name / config in ``hyper_parameters``, and the
+  task's decision parameters (``task_decision``: the collision threshold, trusts).
+* Validation calibrates the task's decision (:meth:`Task.calibrate`: the
+  collision threshold with the best val F1, the regression tasks' trust in
+  their departure from the train constant) at the end of every epoch, so the
+  checkpoint saved for that epoch carries the decision its score was measured
+  with.
+* Given ``reference`` (the best trivial baseline of val per metric,
+  :mod:`probes.baselines`), validation also logs ``val/skill``: the mean over
+  the task's metrics of the skill over that baseline, what
+  :func:`probes.run.run` selects checkpoints on (for gravity it weighs
+  direction and magnitude alike).
 """
 
 from __future__ import annotations
@@ -23,6 +34,7 @@ from torch import Tensor, nn
 from torch.optim.lr_scheduler import LambdaLR
 from torchmetrics import MetricCollection
 
+from probes.baselines import skill
 from probes.datamodule import EVAL_SPLITS
 from probes.decoders import count_parameters
 from probes.features import clip_features
@@ -74,9 +86,12 @@ class ProbeModule(L.LightningModule):
         decoder_config: dict | None = None,
         task_config: dict | None = None,
         eval_splits: Sequence[str] = EVAL_SPLITS,
+        reference: dict[str, float] | None = None,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters(ignore=["backbone", "decoder", "task", "optimizer", "scheduler"])
+        self.save_hyperparameters(
+            ignore=["backbone", "decoder", "task", "optimizer", "scheduler", "reference"]
+        )
         self.backbone = backbone
         for p in self.backbone.parameters():
             p.requires_grad_(False)
@@ -86,12 +101,19 @@ class ProbeModule(L.LightningModule):
         self.optimizer_factory = optimizer
         self.scheduler_factory = scheduler
         self.eval_splits = tuple(eval_splits)
+        calibration = task.calibration_metrics()
         self.metrics = nn.ModuleDict(
             {
-                _metrics_key(split): MetricCollection(task.metrics(), prefix=f"{split}/")
+                _metrics_key(split): MetricCollection(
+                    {k: m for k, m in task.metrics().items() if split != "val" or k not in calibration},
+                    prefix=f"{split}/",
+                )
                 for split in ("train", "val", *self.eval_splits)
             }
         )
+        self.calibration = MetricCollection(calibration, prefix="val/") if calibration else None
+        self.reference = dict(reference) if reference else None
+        self._optimum = {k: float(m.optimum) for k, m in task.metrics().items()}
         self.strict_loading = False  # checkpoints hold no backbone weights
 
     # ------------------------------------------------------------------ #
@@ -130,10 +152,18 @@ class ProbeModule(L.LightningModule):
             prog_bar=split == "train",
             add_dataloader_idx=False,
         )
+        collections = [self.metrics[_metrics_key(split)]]
         with torch.no_grad():
-            collection = self.metrics[_metrics_key(split)]
-            collection.update(self.task.predict(output.detach()), target, mask)
-        self.log_dict(collection, on_step=False, on_epoch=True, batch_size=bs, add_dataloader_idx=False)
+            if len(collections[0]):
+                collections[0].update(self.task.predict(output.detach()), target, mask)
+            if split == "val" and self.calibration is not None:
+                self.calibration.update(self.task.scores(output.detach()), target, mask)
+                collections.append(self.calibration)
+        for collection in collections:
+            if len(collection):
+                self.log_dict(
+                    collection, on_step=False, on_epoch=True, batch_size=bs, add_dataloader_idx=False
+                )
         return loss
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> Tensor:
@@ -144,6 +174,18 @@ class ProbeModule(L.LightningModule):
 
     def test_step(self, batch: dict[str, Any], batch_idx: int, dataloader_idx: int = 0) -> None:
         self._shared_step(batch, self.eval_splits[dataloader_idx])
+
+    def on_validation_epoch_end(self) -> None:
+        # runs before Lightning computes and resets the logged metrics: their sums are the whole epoch's
+        if self.calibration is not None:
+            self.task.calibrate({k.removeprefix("val/"): m for k, m in self.calibration.items()})
+        if self.reference is not None:
+            values = {}
+            for collection in (self.metrics[_metrics_key("val")], self.calibration):
+                for name, metric in (collection or {}).items():
+                    values[name.removeprefix("val/")] = float(metric.compute())
+            skills = [skill(values.get(k), self.reference.get(k), opt) for k, opt in self._optimum.items()]
+            self.log("val/skill", sum(skills) / len(skills), prog_bar=True)
 
     # ------------------------------------------------------------------ #
     def configure_optimizers(self) -> Any:
@@ -159,3 +201,7 @@ class ProbeModule(L.LightningModule):
         checkpoint["state_dict"] = {
             k: v for k, v in checkpoint["state_dict"].items() if not k.startswith(BACKBONE_PREFIX)
         }
+        checkpoint["task_decision"] = self.task.decision()
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        self.task.load_decision(checkpoint.get("task_decision", {}))

@@ -6,12 +6,20 @@ written by :func:`probes.run.run`), and writes the table researchers publish:
 * rows: one per (backbone, weights, decoder), grouped by supervision type;
   a backbone run with random weights is labelled ``(random)``; when one
   backbone was run with several tapped-layer sets, the layers join the label;
+* trivial baselines (``baselines`` of each run's metrics.json,
+  :mod:`probes.baselines`) are rows of their own, first, under
+  ``trivial baseline``: what a predictor that never looks at the pixels scores
+  on the same targets;
 * columns: Collision F1, Gravity mAE (deg) / magE (N), Gravity-OOD mAE / magE,
-  Scene Flow AEE (m) -- all on the test splits;
+  Scene Flow AEE (m) -- all on the test splits. A probe's cell also shows its
+  skill over the best trivial baseline of that split and metric (``skill`` of
+  metrics.json: 0 = as good as the best baseline, 1 = perfect) and is marked
+  ``✗`` when the skill is not above 0 -- the probe does not beat a constant;
 * several runs of one cell (e.g. seeds) are averaged; ``runs`` counts them.
 
-Outputs ``results.md``, ``results.csv`` and a colour-graded ``results.png``
-(per column: green = best, red = worst, direction from the metric).
+Outputs ``results.md``, ``results.csv`` (values and skills in separate
+columns) and a colour-graded ``results.png`` (per column: green = best, red =
+worst, direction from the metric).
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from probes.baselines import BASELINE_LABELS
 from probes.run import METRICS_FILENAME
 
 
@@ -50,7 +59,10 @@ COLUMNS: tuple[Column, ...] = (
     ),
     Column("Scene Flow AEE (m)", "scene_flow", "test", "scene_flow_epe_m", False, "{:.4f}"),
 )
+BASELINE_GROUP = "trivial baseline"
+NOT_BEATEN = "✗"
 SUPERVISION_ORDER: tuple[str, ...] = (
+    BASELINE_GROUP,
     "self-supervised",
     "language-supervised",
     "supervised",
@@ -70,6 +82,12 @@ class Row:
     decoder: str
     values: dict[str, float | None]
     runs: int
+    skills: dict[str, float | None] | None = None
+    """Column title -> mean skill over the best trivial baseline (None for baseline rows)."""
+
+    @property
+    def is_baseline(self) -> bool:
+        return self.supervision == BASELINE_GROUP
 
 
 def load_runs(runs_dir: str | Path) -> list[dict[str, Any]]:
@@ -93,9 +111,19 @@ def _label(run: dict[str, Any], show_layers: bool) -> str:
     return name if run.get("backbone_pretrained", True) else f"{name} (random)"
 
 
+def _mean(values: list[float] | None) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def _finite(value: Any) -> bool:
+    return value is not None and math.isfinite(value)
+
+
 def build_rows(runs: list[dict[str, Any]]) -> list[Row]:
-    """Aggregate runs into table rows (mean over runs of the same backbone, weights and decoder)."""
+    """Aggregate runs into table rows (mean over runs of the same backbone, weights and decoder), plus one
+    row per trivial baseline (mean over the runs that scored it)."""
     cells: dict[tuple[str, str, str], dict[str, list[float]]] = {}
+    skills: dict[tuple[str, str, str], dict[str, list[float]]] = {}
     counts: dict[tuple[str, str, str], set[str]] = {}
     layer_sets: dict[str, set[tuple[int, ...]]] = {}
     for run in runs:
@@ -104,13 +132,23 @@ def build_rows(runs: list[dict[str, Any]]) -> list[Row]:
         show_layers = len(layer_sets[str(run.get("backbone"))]) > 1  # tapped layers differ between runs
         key = (str(run.get("supervision", "unknown")), _label(run, show_layers), str(run.get("decoder", "?")))
         cells.setdefault(key, {})
+        skills.setdefault(key, {})
         counts.setdefault(key, set()).add(run["_path"])
         for col in COLUMNS:
             if run.get("task") != col.task:
                 continue
             value = (run.get(col.split) or {}).get(col.metric)
-            if value is not None and math.isfinite(value):
+            if _finite(value):
                 cells[key].setdefault(col.title, []).append(float(value))
+            sk = ((run.get("skill") or {}).get(col.split) or {}).get(col.metric)
+            if _finite(sk):
+                skills[key].setdefault(col.title, []).append(float(sk))
+            for name, by_metric in ((run.get("baselines") or {}).get(col.split) or {}).items():
+                bkey = (BASELINE_GROUP, BASELINE_LABELS.get(name, name), "-")
+                b = (by_metric or {}).get(col.metric)
+                if _finite(b):
+                    cells.setdefault(bkey, {}).setdefault(col.title, []).append(float(b))
+                    counts.setdefault(bkey, set()).add(run["_path"])
 
     def order(key: tuple[str, str, str]) -> tuple[int, str, str]:
         sup = key[0]
@@ -119,13 +157,25 @@ def build_rows(runs: list[dict[str, Any]]) -> list[Row]:
 
     rows = []
     for key in sorted(cells, key=order):
-        values = {c.title: (sum(v) / len(v) if (v := cells[key].get(c.title)) else None) for c in COLUMNS}
-        rows.append(Row(key[0], key[1], key[2], values, len(counts[key])))
+        values = {c.title: _mean(cells[key].get(c.title)) for c in COLUMNS}
+        row_skills = (
+            None if key[0] == BASELINE_GROUP else {c.title: _mean(skills[key].get(c.title)) for c in COLUMNS}
+        )
+        rows.append(Row(key[0], key[1], key[2], values, len(counts[key]), row_skills))
     return rows
 
 
 def _fmt(col: Column, value: float | None) -> str:
     return "-" if value is None else col.fmt.format(value)
+
+
+def _cell(row: Row, col: Column) -> str:
+    """The value; for a probe also its skill over the best trivial baseline, marked when not above 0."""
+    text = _fmt(col, row.values[col.title])
+    sk = None if row.skills is None else row.skills.get(col.title)
+    if row.values[col.title] is None or sk is None:
+        return text
+    return f"{text} ({sk:+.2f})" + (f" {NOT_BEATEN}" if sk <= 0 else "")
 
 
 def to_markdown(rows: list[Row]) -> str:
@@ -135,23 +185,35 @@ def to_markdown(rows: list[Row]) -> str:
     for r in rows:
         sup = r.supervision if r.supervision != last_sup else ""
         last_sup = r.supervision
-        cells = [sup, r.backbone, r.decoder, *[_fmt(c, r.values[c.title]) for c in COLUMNS], str(r.runs)]
+        cells = [sup, r.backbone, r.decoder, *[_cell(r, c) for c in COLUMNS], str(r.runs)]
         lines.append("| " + " | ".join(cells) + " |")
     arrows = ", ".join(f"{c.title} {'higher' if c.higher_is_better else 'lower'} is better" for c in COLUMNS)
-    return "\n".join(lines) + f"\n\nTest splits; {arrows}.\n"
+    return (
+        "\n".join(lines)
+        + f"\n\nTest splits; {arrows}. In brackets: skill over the best trivial baseline of the split and "
+        + f"metric, (probe - best) / (perfect - best); {NOT_BEATEN} = no better than a predictor that never "
+        + "looks at the pixels.\n"
+    )
 
 
 def write_csv(rows: list[Row], path: Path) -> None:
+    def num(v: float | None) -> str:
+        return "" if v is None else repr(v)
+
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["supervision", "backbone", "decoder", *[c.title for c in COLUMNS], "runs"])
+        w.writerow(
+            ["supervision", "backbone", "decoder", *[c.title for c in COLUMNS],
+             *[f"{c.title} skill" for c in COLUMNS], "runs"]
+        )
         for r in rows:
             w.writerow(
                 [
                     r.supervision,
                     r.backbone,
                     r.decoder,
-                    *["" if r.values[c.title] is None else repr(r.values[c.title]) for c in COLUMNS],
+                    *[num(r.values[c.title]) for c in COLUMNS],
+                    *[num(None if r.skills is None else r.skills.get(c.title)) for c in COLUMNS],
                     r.runs,
                 ]
             )
@@ -188,9 +250,7 @@ def write_png(rows: list[Row], path: Path) -> None:
     cmap = matplotlib.colormaps["RdYlGn"]
     grades = column_grades(rows)
     header = ["Supervision", "Backbone", "Decoder", *[c.title for c in COLUMNS]]
-    text = [
-        [r.supervision, r.backbone, r.decoder, *[_fmt(c, r.values[c.title]) for c in COLUMNS]] for r in rows
-    ]
+    text = [[r.supervision, r.backbone, r.decoder, *[_cell(r, c) for c in COLUMNS]] for r in rows]
     colours = [
         ["white"] * 3
         + [
@@ -207,7 +267,11 @@ def write_png(rows: list[Row], path: Path) -> None:
         table.auto_set_font_size(False)
         table.set_fontsize(8)
         table.scale(1.0, 1.4)
-    ax.set_title("NewtPhys probes (test splits; green = best per column)", fontsize=10)
+    ax.set_title(
+        f"NewtPhys probes (test splits; green = best per column; (skill over best trivial baseline), "
+        f"{NOT_BEATEN} = not above it)",
+        fontsize=10,
+    )
     fig.savefig(path, dpi=150, bbox_inches="tight")
 
 

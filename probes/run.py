@@ -1,9 +1,18 @@
 """``run(cfg)``: one probing run from a composed Hydra config (what ``train.py`` calls).
 
-Order: seed -> task -> frozen backbone -> datamodule -> decoder -> module ->
-callbacks / loggers -> fit (model selection on val) -> test on ``test`` and
-``test_ood_gravity`` with the best checkpoint -> ``metrics.json`` in the run
-directory (``cfg.paths.output_dir``).
+Order: seed -> task -> frozen backbone -> datamodule -> trivial baselines
+(fitted on train, scored on every split, :mod:`probes.baselines`) -> decoder
+(starting from the train constant) -> module -> callbacks / loggers -> fit
+(model selection on ``val/skill``, the skill over the best val baseline) ->
+test on ``test`` and ``test_ood_gravity`` with the best checkpoint ->
+``metrics.json`` in the run directory (``cfg.paths.output_dir``).
+
+``metrics.json`` holds, besides the run's identity: the probe's metrics per
+split (``val``, ``test``, ``test_ood_gravity``); ``baselines`` (split ->
+baseline -> metric -> value, for the same splits); ``best_baseline`` (split ->
+metric -> name and value); ``skill`` (split -> metric -> skill over the best
+baseline, and their ``mean``); ``baseline_fit`` (the fitted constants) and
+``decision`` (the calibrated collision threshold or trusts, :mod:`probes.tasks`).
 """
 
 from __future__ import annotations
@@ -22,6 +31,8 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from omegaconf import DictConfig, OmegaConf
 
+from newtphys import schema
+from probes.baselines import BaselineResults, evaluate_baselines
 from probes.datamodule import EVAL_SPLITS, ProbeDataModule
 from probes.decoders import count_parameters
 from probes.module import ProbeModule
@@ -56,9 +67,13 @@ def _supervision(cfg: DictConfig, backbone_name: str) -> str:
         return "unknown"
 
 
-def _build_callbacks(cfg: DictConfig, task: Task) -> list[L.Callback]:
-    """Instantiate ``cfg.callbacks``; checkpoint / early stopping monitor the task's val metric."""
-    monitor, mode = f"val/{task.monitor}", task.monitor_mode
+MONITOR = "val/skill"
+"""Model selection: mean skill over the task's metrics against the best trivial baseline of val."""
+
+
+def _build_callbacks(cfg: DictConfig) -> list[L.Callback]:
+    """Instantiate ``cfg.callbacks``; checkpoint / early stopping monitor ``MONITOR`` (higher is better)."""
+    monitor, mode = MONITOR, "max"
     callbacks: list[L.Callback] = []
     for cb_cfg in (cfg.get("callbacks") or {}).values():
         if cb_cfg is None or "_target_" not in cb_cfg:
@@ -97,6 +112,19 @@ class ProbeComponents:
     datamodule: ProbeDataModule
     model: ProbeModule
     run_info: dict[str, Any]
+    baselines: BaselineResults
+
+
+def fit_baselines(task: Task, datamodule: ProbeDataModule, seed: int) -> BaselineResults:
+    """The task's trivial baselines fitted on train, scored on val and the test splits (targets only)."""
+    key = task.target_key
+    return evaluate_baselines(
+        task.name,
+        task.metrics,
+        datamodule.target_batches(schema.Split.TRAIN.value, key),
+        {split: datamodule.target_batches(split, key) for split in ("val", *EVAL_SPLITS)},
+        seed=seed,
+    )
 
 
 def build(cfg: DictConfig) -> ProbeComponents:
@@ -111,6 +139,8 @@ def build(cfg: DictConfig) -> ProbeComponents:
         cfg.data, targets=(task.target_key,), backbone=backbone, seed=int(cfg.seed)
     )
     datamodule.check()  # fail fast on missing / old / too-short data, before any training
+    baselines = fit_baselines(task, datamodule, int(cfg.seed))
+    log.info("trivial baselines on val: %s", baselines.best.get("val"))
     decoder = hydra.utils.instantiate(
         cfg.decoder,
         feat_dims=list(backbone.feat_dims),
@@ -119,6 +149,9 @@ def build(cfg: DictConfig) -> ProbeComponents:
     )
     if callable(decoder) and not isinstance(decoder, torch.nn.Module):  # a _partial_ config
         decoder = decoder()
+    constant = task.output_bias(baselines.fitted)
+    decoder.start_from_constant(constant)  # training starts at the train constant ...
+    task.set_anchor(constant)  # ... and validation can shrink the probe back toward it (Task.calibrate)
     num_params = count_parameters(decoder)
     log.info("decoder %s: %d trainable parameters", type(decoder).__name__, num_params)
 
@@ -131,6 +164,7 @@ def build(cfg: DictConfig) -> ProbeComponents:
         backbone_config={**_container(cfg.backbone), "name": backbone_name, "pretrained": pretrained},
         decoder_config={**_container(cfg.decoder), "class": type(decoder).__name__},
         task_config=_container(cfg.task),
+        reference=baselines.reference(schema.Split.VAL.value),
     )
     run_info = {
         "backbone": backbone_name,
@@ -142,7 +176,7 @@ def build(cfg: DictConfig) -> ProbeComponents:
         "decoder_parameters": num_params,
         "seed": int(cfg.seed),
     }
-    return ProbeComponents(task, backbone, datamodule, model, run_info)
+    return ProbeComponents(task, backbone, datamodule, model, run_info, baselines)
 
 
 def run(cfg: DictConfig) -> dict[str, Any]:
@@ -150,9 +184,9 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     output_dir = Path(cfg.paths.output_dir)
     output_dir.mkdir(parents=True, exist_ok=True)
     parts = build(cfg)
-    task, model, datamodule = parts.task, parts.model, parts.datamodule
+    model, datamodule = parts.model, parts.datamodule
 
-    callbacks = _build_callbacks(cfg, task)
+    callbacks = _build_callbacks(cfg)
     loggers = _build_loggers(cfg)
     for lg in loggers:
         lg.log_hyperparams({**_container(cfg), "run_info": parts.run_info})
@@ -164,22 +198,13 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         best = ckpt.best_model_path if ckpt is not None and ckpt.best_model_path else None
         val_results = trainer.validate(model, datamodule=datamodule, ckpt_path=best, verbose=False)
         test_results = trainer.test(model, datamodule=datamodule, ckpt_path=best, verbose=False)
+        metrics = _results(parts, [*val_results, *test_results], trainer, best)
+        for lg in loggers:  # baselines and skill as their own series next to the probe's metrics
+            flat = _flat_baselines_and_skill(parts.baselines, metrics["skill"])
+            lg.log_metrics(flat, step=trainer.global_step)
+            lg.save()
     finally:
         _finish_wandb(loggers)
-
-    merged: dict[str, float] = {}
-    for res in [*val_results, *test_results]:
-        merged.update(res)
-    metrics = {
-        **parts.run_info,
-        "status": "finished",
-        "best_checkpoint": best,
-        "monitor": f"val/{task.monitor}",
-        "epochs": int(trainer.current_epoch),
-        "global_step": int(trainer.global_step),
-        "val": _finite_or_none(_split_metrics(merged, "val")),
-        **{s: _finite_or_none(_split_metrics(merged, s)) for s in EVAL_SPLITS},
-    }
     (output_dir / METRICS_FILENAME).write_text(json.dumps(metrics, indent=1))
     log.info("metrics of %s written to %s", parts.run_info["backbone"], output_dir / METRICS_FILENAME)
     return metrics
@@ -188,10 +213,58 @@ def run(cfg: DictConfig) -> dict[str, Any]:
 def monitored_value(metrics: dict[str, Any]) -> float:
     """The monitored validation metric of a ``run`` result (what ``train.py`` returns to Hydra sweepers).
 
-    ``metrics["monitor"]`` is ``"val/<name>"``; a missing or non-finite value is NaN, never a silent 0."""
+    ``metrics["monitor"]`` is ``"val/skill"`` (the mean skill over the best trivial baseline, in
+    ``metrics["skill"]["val"]["mean"]``) or ``"val/<metric>"``; a missing value is NaN, never a silent 0."""
     split, _, name = str(metrics["monitor"]).partition("/")
-    value = metrics.get(split, {}).get(name)
+    value = metrics.get("skill", {}).get(split, {}).get("mean") if name == "skill" else metrics.get(split, {}).get(name)
     return float("nan") if value is None else float(value)
+
+
+def _results(
+    parts: ProbeComponents, results: list[dict[str, float]], trainer: L.Trainer, best: str | None
+) -> dict[str, Any]:
+    """The content of ``metrics.json`` (module docstring) from Lightning's validate / test results."""
+    merged: dict[str, float] = {}
+    for res in results:
+        merged.update(res)
+    names = set(parts.task.metrics())
+    probe = {
+        split: {k: v for k, v in _split_metrics(merged, split).items() if k in names}
+        for split in ("val", *EVAL_SPLITS)
+    }
+    base = parts.baselines
+    return {
+        **parts.run_info,
+        "status": "finished",
+        "best_checkpoint": best,
+        "monitor": MONITOR,
+        "epochs": int(trainer.current_epoch),
+        "global_step": int(trainer.global_step),
+        **{split: _finite_or_none(values) for split, values in probe.items()},
+        "baselines": {
+            split: {n: _finite_or_none(v) for n, v in by.items()} for split, by in base.scores.items()
+        },
+        "best_baseline": base.best,
+        "skill": {split: _finite_or_none(base.skill(split, values)) for split, values in probe.items()},
+        "baseline_fit": base.fitted,
+        "decision": parts.task.decision(),
+    }
+
+
+def _flat_baselines_and_skill(
+    base: BaselineResults, skills: dict[str, dict[str, float | None]]
+) -> dict[str, float]:
+    """``baseline/<split>/<name>/<metric>`` and ``skill/<split>/<metric>`` -> finite values, for loggers."""
+    flat = {
+        f"baseline/{split}/{name}/{metric}": value
+        for split, by in base.scores.items()
+        for name, values in by.items()
+        for metric, value in values.items()
+    }
+    flat.update(
+        {f"skill/{split}/{metric}": v for split, values in skills.items() for metric, v in values.items()}
+    )
+    return {k: float(v) for k, v in flat.items() if v is not None and math.isfinite(v)}
 
 
 def _finish_wandb(loggers: list[Any]) -> None:

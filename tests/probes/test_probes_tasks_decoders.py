@@ -70,6 +70,13 @@ def test_gravity_loss_hand_values():
     assert task.loss(perfect, g, mask).item() == pytest.approx(0.0, abs=1e-5)
     # opposite direction, same magnitude: 1 - cos = 2
     assert task.loss(-perfect, g, mask).item() == pytest.approx(2.0, abs=1e-5)
+    # perpendicular, same magnitude: chord between unit vectors sqrt(2) (1 - cos would give 1)
+    side = torch.tensor([1.962, 0.0, 0.0]).view(1, 3, 1, 1)
+    assert task.loss(side, g, mask).item() == pytest.approx(math.sqrt(2), abs=1e-5)
+    # 10 degrees off, same magnitude: chord 2 sin(5 deg) ~ 0.1745, close to the angle in radians
+    a = math.radians(10.0)
+    tilted = torch.tensor([1.962 * math.sin(a), 0.0, -1.962 * math.cos(a)]).view(1, 3, 1, 1)
+    assert task.loss(tilted, g, mask).item() == pytest.approx(2 * math.sin(a / 2), abs=1e-5)
     # right direction, double magnitude: |log 2|
     assert task.loss(2 * perfect, g, mask).item() == pytest.approx(math.log(2), abs=1e-5)
     assert torch.allclose(task.predict(perfect), g)
@@ -91,15 +98,36 @@ def test_task_parameter_errors_name_parameter():
         CollisionTask(threshold=1.5)
 
 
-def test_constant_baselines():
-    g = torch.zeros(2, 3, 2, 2)
-    g[:, 2] = -10.0
-    g[1, 2, 0, 0] = -30.0
-    mask = torch.ones(2, 2, 2, dtype=torch.bool)
-    mean = GravityTask().constant_baseline(g, mask)["mean_vector"]
-    assert mean.shape == g.shape and mean[0, 2, 0, 0].item() == pytest.approx(-12.5)
-    base = CollisionTask().constant_baseline(torch.zeros(2, 2, 2), mask)
-    assert not base["all_negative"].any() and base["all_positive"].all()
+@pytest.mark.parametrize("decoder", ["linear", "dpt"])
+@pytest.mark.parametrize("task_name", TASK_NAMES)
+def test_heads_start_from_the_train_constant(decoder, task_name):
+    task = build_task(task_name)
+    fitted = {
+        "positive_rate": 0.2,
+        "direction": [0.0, 0.6, 0.8],
+        "median_magnitude_n": 4.0,
+        "mean_flow_m": [0.5, 0.5, 0.5],
+        "median_flow_m": [0.001, 0.0, -0.002],  # the head starts from the median (least endpoint error)
+    }
+    bias = task.output_bias(fitted)
+    assert bias.shape == (task.out_channels,)
+    dims = (8, 8)
+    head = (
+        LinearHead(list(dims), num_frames=2, out_channels=task.out_channels)
+        if decoder == "linear"
+        else DPTHead(list(dims), num_frames=2, out_channels=task.out_channels, width=8)
+    )
+    head.start_from_constant(bias)
+    out = head(_feats(k=2, dims=dims, sizes=((3, 4), (3, 4))), out_size=(6, 8))
+    pred = task.predict(out)
+    expected = {
+        "collision": torch.zeros(2, 6, 8, dtype=torch.bool),  # logit 0 at the default threshold 0.5
+        "gravity": torch.tensor([0.0, 2.4, 3.2]).view(1, 3, 1, 1).expand(2, 3, 6, 8),  # 4 N along (0, .6, .8)
+        "scene_flow": torch.tensor([0.001, 0.0, -0.002]).view(1, 3, 1, 1).expand(2, 3, 6, 8),
+    }[task_name]
+    assert torch.allclose(pred, expected, atol=1e-6)
+    with pytest.raises(ValueError, match="one per output channel"):
+        head.start_from_constant(torch.zeros(task.out_channels + 1))
 
 
 # --------------------------------------------------------------------------- #

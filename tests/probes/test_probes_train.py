@@ -27,6 +27,7 @@ from torch.utils.data import DataLoader
 
 from newtphys import schema
 from newtphys.config import CONFIG_DIR
+from probes.baselines import evaluate_baselines
 from probes.datamodule import DataConfigError
 from probes.run import METRICS_FILENAME, build, run
 
@@ -93,6 +94,19 @@ def test_run_writes_checkpoint_wandb_files_and_metrics(
         ang = metrics[split]["gravity_angular_error_deg"]
         mag = metrics[split]["gravity_magnitude_error_n"]
         assert 0.0 <= ang <= 180.0 and mag >= 0.0
+        # the trivial baselines of every split, scored with the same metrics, and the probe's skill over them
+        base = metrics["baselines"][split]["constant"]
+        best = metrics["best_baseline"][split]["gravity_magnitude_error_n"]
+        assert best == {"baseline": "constant", "value": base["gravity_magnitude_error_n"]}
+        assert metrics["skill"][split]["gravity_magnitude_error_n"] == pytest.approx(
+            1.0 - mag / base["gravity_magnitude_error_n"]
+        )
+    assert set(metrics["baselines"]) == {"val", "test", "test_ood_gravity"}
+    # calibrated on val (trust 0 = the train constant is on the grid): at least the constant there
+    assert metrics["skill"]["val"]["gravity_angular_error_deg"] >= -1e-6
+    assert metrics["skill"]["val"]["gravity_magnitude_error_n"] >= -1e-6
+    assert set(metrics["decision"]) == {"trust_direction", "trust_magnitude"}
+    assert metrics["monitor"] == "val/skill" and len(metrics["baseline_fit"]["direction"]) == 3
     # checkpoint: decoder weights + backbone name/config, no frozen backbone weights
     ckpt = torch.load(metrics["best_checkpoint"], map_location="cpu", weights_only=False)
     keys = list(ckpt["state_dict"])
@@ -121,11 +135,19 @@ def test_csv_logger_and_checkpoint_reload(synthetic_dataset: Path, tmp_path: Pat
     assert "backbone_pretrained: false" in hparams
     assert 0.0 <= metrics["test"]["collision_f1"] <= 1.0
     assert 0.0 <= metrics["test_ood_gravity"]["collision_f1"] <= 1.0
+    assert set(metrics["baselines"]["test"]) == {"all_negative", "all_positive", "train_rate"}
+    # the threshold calibrated on val travels in the checkpoint; validation F1 is the calibrated one,
+    # so it is at least the all-positive F1 (threshold 0 is on the grid)
+    assert 0.0 <= metrics["decision"]["threshold"] < 1.0
+    assert metrics["val"]["collision_f1"] >= metrics["baselines"]["val"]["all_positive"]["collision_f1"] - 1e-12
+    assert "baseline/val/all_positive/collision_f1" in (out / "csv" / "metrics.csv").read_text()
     # the decoder reloads into a freshly built module (backbone rebuilt from config, not from the checkpoint)
     parts = build(cfg)
     ckpt = torch.load(metrics["best_checkpoint"], map_location="cpu", weights_only=False)
     missing, unexpected = parts.model.load_state_dict(ckpt["state_dict"], strict=False)
     assert not unexpected and all(k.startswith("backbone.") for k in missing)
+    parts.model.on_load_checkpoint(ckpt)
+    assert parts.task.threshold == ckpt["task_decision"]["threshold"] == metrics["decision"]["threshold"]
 
 
 # --------------------------------------------------------------------------- #
@@ -176,10 +198,11 @@ def test_learning_is_real_beats_best_constant_predictor(
         pred = task.predict(model(batch))
     probe = _evaluate(task, [(pred, target, mask)])
     print(f"learning[{task_name}]: probe {probe}")
-    baselines = {
-        name: _evaluate(task, [(p, target, mask)]) for name, p in task.constant_baseline(target, mask).items()
-    }
-    print(f"learning[{task_name}]: constant baselines {baselines}")
+    # the trivial baselines fitted on train, scored on the same (train) clips with the same metrics
+    baselines = evaluate_baselines(task.name, task.metrics, [(target, mask)], {"train": [(target, mask)]}).scores[
+        "train"
+    ]
+    print(f"learning[{task_name}]: trivial baselines {baselines}")
 
     if task_name == "collision":
         best_constant = max(b["collision_f1"] for b in baselines.values())  # all-positive: 2p / (1 + p)
@@ -187,13 +210,13 @@ def test_learning_is_real_beats_best_constant_predictor(
         assert best_constant == pytest.approx(2 * p / (1 + p), rel=1e-6)
         assert probe["collision_f1"] > best_constant + 0.15, (probe, baselines)
     elif task_name == "gravity":
-        base = baselines["mean_vector"]
-        # the fixture's camera barely rotates, so the mean vector's direction is already almost exact
+        base = baselines["constant"]
+        # the fixture's camera barely rotates, so the constant's direction is already almost exact
         # (~0.03 deg); the magnitude (mass of each box) must be learned from appearance
         assert probe["gravity_magnitude_error_n"] < 0.75 * base["gravity_magnitude_error_n"], (probe, base)
         assert probe["gravity_angular_error_deg"] < 15.0
     else:
-        base = baselines["all_zero"]["scene_flow_epe_m"]
+        base = baselines["zero"]["scene_flow_epe_m"]
         speed = (target.norm(dim=1)[mask]).mean().item()
         assert base == pytest.approx(speed, rel=0.2)  # all-zero EPE = mean |flow| (per image, then images)
         assert probe["scene_flow_epe_m"] < 0.6 * base, (probe, base)
@@ -302,6 +325,5 @@ def test_train_main_returns_the_monitored_validation_metric(synthetic_dataset: P
     cfg = _compose(tmp_path, synthetic_dataset, ["task=gravity", "logger=csv"])
     value = main.__wrapped__(cfg)  # the function @hydra.main wraps, called with a composed config
     metrics = json.loads((tmp_path / "run" / METRICS_FILENAME).read_text())
-    split, name = metrics["monitor"].split("/")
-    assert split == "val" and isinstance(value, float)
-    assert value == metrics["val"][name] and value == value  # finite: the tiny probe trained two epochs
+    assert metrics["monitor"] == "val/skill" and isinstance(value, float)  # skill over the best trivial baseline
+    assert value == metrics["skill"]["val"]["mean"] and value == value  # finite: the tiny probe trained two epochs
