@@ -169,39 +169,61 @@ def test_box_distance_of_two_unit_boxes() -> None:
     assert box_distance(a, Box(np.array([0.5, 0.0, 0.0]), np.ones(3), eye)) == pytest.approx(0.0, abs=1e-12)
 
 
+def _visible_in_maps(inst: np.ndarray, amodal: np.ndarray, ws) -> set[int]:
+    """Objects visible by the paper's rule, from the instances and amodal maps alone (not the world state)."""
+    h, w = inst.shape
+    out = set()
+    for k, o in enumerate(ws.objects):
+        shown, full = int((inst == o.id).sum()), int(amodal[k].sum())
+        if full > 0 and shown / full >= 0.31 and shown >= 0.004 * h * w:
+            out.add(o.id)
+    return out
+
+
+SECOND_PATH_IDS = ("F_VISIBILITY_OBJECT_COUNT", "F_VIEWPOINT_CAMERA_ANGLE", "F_MASS_OBJECT", "F_VISIBILITY_OBJECT",
+                   "F_PERSISTENCE_TOTAL_COUNT", "F_SIZE_OBJECT")
+
+
 def test_answers_recomputed_from_the_maps(push_data: Path, question_set: Path) -> None:
-    """Second path: the visible-object count from the instances and amodal maps (not the world state), the
-    camera pitch from the extrinsics, the mass from the gravity map (|F| / g on the object's pixels)."""
+    """Second paths, independent of the world state the questions read: the visible-object count, the most
+    visible object and the count over a clip from the instances and amodal maps, the camera pitch from the
+    extrinsics, the mass from the gravity map (|F| / g on the object's pixels), a rigid object's box from
+    its rest extents."""
     answers = vs.read_answers(question_set)
     checked = Counter()
     for item in vs.read_items(question_set):
-        if item.mode != "single" or item.question_id not in (
-                "F_VISIBILITY_OBJECT_COUNT", "F_VIEWPOINT_CAMERA_ANGLE", "F_MASS_OBJECT"):
+        if item.question_id not in SECOND_PATH_IDS or (item.mode != "single" and item.question_id !=
+                                                       "F_PERSISTENCE_TOTAL_COUNT"):  # fmt: skip
             continue
         t = item.frames[-1]
         with ShardReader(push_data / item.shard) as r:
             ws = r.world_state(item.sequence_id)
-            h, w = ws.image_size
-            inst = r.read(item.sequence_id, schema.INSTANCES, t, t + 1)[0]
-            amodal = r.read(item.sequence_id, schema.AMODAL_INSTANCES, t, t + 1)[0]
+            inst = {f: r.read(item.sequence_id, schema.INSTANCES, f, f + 1)[0] for f in item.frames}
+            amodal = {f: r.read(item.sequence_id, schema.AMODAL_INSTANCES, f, f + 1)[0] for f in item.frames}
             w2c = r.world_to_camera(item.sequence_id, t, t + 1)[0].astype(np.float64)
             grav = r.read(item.sequence_id, schema.GRAVITY, t, t + 1)[0]
         value = answers[item.idx].value
-        if item.question_id == "F_VISIBILITY_OBJECT_COUNT":
-            count = 0
-            for k, o in enumerate(ws.objects):
-                shown, full = int((inst == o.id).sum()), int(amodal[k].sum())
-                count += full > 0 and shown / full >= 0.31 and shown >= 0.004 * h * w
-            assert value == count
-        elif item.question_id == "F_VIEWPOINT_CAMERA_ANGLE":
+        qid = item.question_id
+        if qid == "F_VISIBILITY_OBJECT_COUNT":
+            assert value == len(_visible_in_maps(inst[t], amodal[t], ws))
+        elif qid == "F_VISIBILITY_OBJECT":
+            pixels = {o.id: int((inst[t] == o.id).sum()) for o in ws.objects}
+            assert value == max(pixels, key=pixels.get)
+        elif qid == "F_PERSISTENCE_TOTAL_COUNT":
+            assert value == len(set().union(*(_visible_in_maps(inst[f], amodal[f], ws) for f in item.frames)))
+        elif qid == "F_VIEWPOINT_CAMERA_ANGLE":
             forward = w2c[2, :3]  # the camera's z axis in world coordinates
             assert value == pytest.approx(np.degrees(np.arcsin(forward[2])), abs=0.01)
-        else:
-            target = item.objects[0]
-            force = np.linalg.norm(grav[inst == target], axis=-1)
+        elif qid == "F_MASS_OBJECT":
+            force = np.linalg.norm(grav[inst[t] == item.objects[0]], axis=-1)
             assert value == pytest.approx(float(np.median(force)) / ws.gravity_magnitude, rel=1e-4)
-        checked[item.question_id] += 1
-    assert checked["F_VISIBILITY_OBJECT_COUNT"] > 0 and checked["F_VIEWPOINT_CAMERA_ANGLE"] > 0, checked
+        else:  # F_SIZE_OBJECT: a one-handle (rigid) object's box is its rest extents
+            obj = ws.object_by_id(item.objects[0])
+            if obj.num_handles != 1:
+                continue
+            assert value == pytest.approx(sorted(obj.size, reverse=True), rel=0.01, abs=1e-3)
+        checked[qid] += 1
+    assert all(checked[q] > 0 for q in SECOND_PATH_IDS), checked
 
 
 def test_old_shards_get_a_clear_error(push_data: Path, tmp_path: Path) -> None:
