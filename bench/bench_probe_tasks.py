@@ -112,7 +112,7 @@ def rows_of(metrics: dict) -> list[dict]:
 
 def print_table(rows: list[dict]) -> None:
     print(
-        f"\n{'backbone':<9} {'task':<10} {'split':<16} {'metric':<26} {'best trivial baseline':<34} "
+        f"\n{'backbone':<9} {'task':<10} {'split':<16} {'metric':<26} {'best trivial baseline':<42} "
         f"{'baseline':>9} {'probe':>9} {'ratio':>7} {'skill':>7}"
     )
     for r in rows:
@@ -121,7 +121,7 @@ def print_table(rows: list[dict]) -> None:
         mark = "" if r["skill"] is None or r["skill"] > 0 else "  <- not above the baseline"
         print(
             f"{r['backbone']:<9} {r['task']:<10} {r['split']:<16} {r['metric']:<26} "
-            f"{BASELINE_LABELS.get(r['baseline'], r['baseline']):<34} {r['baseline_value']:>9.4g} "
+            f"{BASELINE_LABELS.get(r['baseline'], r['baseline']):<42} {r['baseline_value']:>9.4g} "
             f"{r['probe']:>9.4g} {ratio:>7} {sk:>7}{mark}"
         )
     print("skill = (probe - best baseline) / (perfect - best baseline): 0 = a constant, 1 = perfect")

@@ -222,8 +222,8 @@ BASELINES: dict[str, type[TrivialBaselines]] = {
 BASELINE_LABELS: dict[str, str] = {
     "all_negative": "collision: none",
     "all_positive": "collision: everywhere",
-    "train_rate": "collision: random at the train rate",
-    "constant": "gravity: train mean direction x median magnitude",
+    "train_rate": "collision: random at train rate",
+    "constant": "gravity: mean direction, median magnitude",
     "zero": "flow: zero",
     "mean": "flow: train mean",
     "median": "flow: train geometric median",

@@ -112,7 +112,7 @@ def test_rows_grouped_by_supervision_and_averaged(runs_dir: Path):
     assert [(r.supervision, r.backbone) for r in rows] == [
         ("trivial baseline", "collision: everywhere"),
         ("trivial baseline", "collision: none"),
-        ("trivial baseline", "gravity: train mean direction x median magnitude"),
+        ("trivial baseline", "gravity: mean direction, median magnitude"),
         ("self-supervised", "dinov2"),
         ("language-supervised", "clip"),
         ("supervised", "vit_tiny (random)"),
