@@ -42,6 +42,7 @@ from omegaconf import open_dict
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from anywhere: the worktree's packages
 
+from newtphys.config import CONFIG_DIR  # noqa: E402
 from probes.baselines import BASELINE_LABELS  # noqa: E402
 from probes.run import run  # noqa: E402
 from probes.tasks import TASK_NAMES  # noqa: E402
@@ -79,7 +80,7 @@ def probe(backbone: str, task: str, data: Path, work: Path, setting: dict, epoch
         f"trainer.max_epochs={epochs}", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
         "logger=csv", "data.num_workers=0", "data.cache_in_memory=true",
     ]  # fmt: skip
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
         cfg = compose("train", overrides=overrides)
     with open_dict(cfg):
         cfg.paths.output_dir = str(work / "runs" / f"{backbone}-{task}")

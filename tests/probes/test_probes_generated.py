@@ -29,10 +29,11 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
+from newtphys.config import CONFIG_DIR
 from probes.run import run
 
 REPO = Path(__file__).resolve().parents[2]
-CONF = str(REPO / "conf")
+CONF = str(CONFIG_DIR)
 SPLITS = (("train", 16, "earth"), ("val", 6, "earth"), ("test", 1, "earth"), ("test_ood_gravity", 1, "ood"))
 GENERATE = [
     "scenario=push",
