@@ -1,6 +1,6 @@
 """Camera conventions, projection and frame transforms (NumPy, float64 inside).
 
-Conventions (DESIGN.md section 2):
+Conventions (docs/data_contract.md, "Conventions"):
 
 * World frame: right-handed, Z up, ground plane Z = 0; metres.
 * Camera frame: OpenCV — x right, y down, z forward (depth = camera z).

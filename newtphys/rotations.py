@@ -1,6 +1,6 @@
 """Rotations: the one implementation every product uses (NumPy, float64, batched).
 
-Conventions (DESIGN.md section 2): quaternions are (w, x, y, z), Hamilton
+Conventions (docs/data_contract.md, "Conventions"): quaternions are (w, x, y, z), Hamilton
 product, acting on column vectors (``v' = R v``); a quaternion and its
 negative are the same rotation, and converters return the one with w >= 0.
 Every function takes leading batch dimensions and validates its input,

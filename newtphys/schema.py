@@ -1,7 +1,7 @@
 """The data contract: every map's name, dtype, shape pattern, unit and meaning.
 
 This module is the single source of truth for what a NewtPhys shard holds
-(DESIGN.md section 3). Writers, readers, the validator, the dataset, the
+(docs/data_contract.md). Writers, readers, the validator, the dataset, the
 visualiser and the probes all look names, dtypes and units up here; no other
 module spells a map name as a string literal.
 

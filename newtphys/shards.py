@@ -1,6 +1,6 @@
 """HDF5 shards: atomic writer, lazy fork-safe reader, and the split index.
 
-Layout and meaning are fixed by DESIGN.md section 3 and described by
+Layout and meaning are fixed by docs/data_contract.md and described by
 :mod:`newtphys.schema`. Readers need nothing but h5py: maps are compressed
 with gzip (+ byte shuffle), which every HDF5 build decodes without plugins,
 and chunked one frame per chunk so a frame range reads only those frames.
@@ -186,7 +186,7 @@ class ShardWriter:
         world_to_camera: np.ndarray,
         world_state: WorldState,
     ) -> None:
-        """Validate and write one sequence group (all maps of DESIGN.md section 3)."""
+        """Validate and write one sequence group (all maps of docs/data_contract.md)."""
         if self._file is None:
             raise ShardError(f"{self.final_path}: writer is not open (use it as a context manager)")
         if sequence_id in self._file:

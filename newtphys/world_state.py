@@ -1,4 +1,4 @@
-"""World-state dataclasses and their JSON form (DESIGN.md section 3).
+"""World-state dataclasses and their JSON form (docs/data_contract.md).
 
 ``WorldState.to_json`` / ``WorldState.from_json`` round-trip exactly. Parsing
 validates every key and type and the physical ranges (positive masses, unit

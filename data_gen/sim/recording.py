@@ -97,7 +97,7 @@ class ContactEvent:
     end_time_s: float
 
     def to_dict(self) -> dict:
-        """The world-state ``collisions`` entry (DESIGN.md section 3)."""
+        """The world-state ``collisions`` entry (docs/data_contract.md)."""
         return {
             "frame": int(self.frame),
             "objects": [int(self.objects[0]), int(self.objects[1])],

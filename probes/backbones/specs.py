@@ -4,8 +4,9 @@ One :class:`BackboneSpec` per registry name. The factory in
 ``probes/backbones/__init__.py`` reads a record and hands it to its family's
 builder; adding a checkpoint of a known family is adding one entry here.
 
-Ids, taps and normalisation constants follow ``shared/ANCHORS.md``. Layer
-indices are 0-based block indices: tap ``2`` is the output of the third
+Ids, taps and normalisation constants are those the model authors publish
+(timm, transformers and diffusers model cards). Layer indices are 0-based
+block indices: tap ``2`` is the output of the third
 transformer block (the Probe3D off-by-one for MAE is avoided by using the
 same convention for every ViT).
 """

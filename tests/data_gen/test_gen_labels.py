@@ -1,4 +1,4 @@
-"""Label maps mean what the data contract says (DESIGN.md section 3), on simulated scenes chosen to show it.
+"""Label maps mean what the data contract says (docs/data_contract.md), on simulated scenes chosen to show it.
 
 Every map is checked against a reference computed another way: from the world state (masses, poses,
 contacts), the cameras and the scene's geometry, on the two sequences of ``label_sequences``

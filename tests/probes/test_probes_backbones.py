@@ -22,7 +22,7 @@ from probes.backbones import BACKBONE_NAMES, Backbone, WeightsUnavailableError, 
 REPO = Path(__file__).resolve().parents[2]
 VIT_B = ("dino", "dinov2", "clip", "siglip", "mae", "deit3")
 
-# Documented normalisation constants (shared/ANCHORS.md), typed by hand.
+# Normalisation constants as the model authors document them, typed by hand.
 IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
 CLIP = ((0.4815, 0.4578, 0.4082), (0.2686, 0.2613, 0.2758))
 HALF = ((0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
