@@ -23,3 +23,14 @@ def synthetic_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """
     root = tmp_path_factory.mktemp("synthetic_dataset")
     return write_fixture_dataset(root)
+
+
+@pytest.fixture()
+def one_thread():
+    """The test machine is shared: one torch intra-op thread avoids oversubscription (restored afterwards)."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -25,15 +25,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import torch
-from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-from newtphys.config import CONFIG_DIR
+from newtphys.config import compose_config
 from probes.run import run
 
-REPO = Path(__file__).resolve().parents[2]
-CONF = str(CONFIG_DIR)
 SPLITS = (("train", 16, "earth"), ("val", 6, "earth"), ("test", 1, "earth"), ("test_ood_gravity", 1, "ood"))
 GENERATE = [
     "scenario=push",
@@ -60,35 +56,18 @@ def mass_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     root = tmp_path_factory.mktemp("generated_mass")
     for seed, (split, n, gravity) in enumerate(SPLITS):
-        with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-            cfg = compose(
-                "generate",
-                overrides=[*GENERATE, f"out_dir={root}", f"split={split}", f"num_sequences={n}",
-                           f"gravity={gravity}", f"seed={seed}", "sequences_per_shard=8"],
-            )  # fmt: skip
-        generate(cfg)
+        generate(compose_config("generate", [*GENERATE, f"out_dir={root}", f"split={split}", f"num_sequences={n}",
+                                             f"gravity={gravity}", f"seed={seed}", "sequences_per_shard=8"]))
     return root
 
 
-@pytest.fixture()
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _probe(task: str, data: Path, tmp: Path) -> dict:
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        cfg = compose(
-            "train",
-            overrides=[
-                "backbone.pretrained=false", "backbone.image_size=96", f"task={task}", f"data.data_root={data}",
-                f"paths.cache_dir={data / 'cache'}", f"paths.log_dir={tmp / 'logs'}", "trainer=cpu",
-                "trainer.max_epochs=8", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
-                "logger=csv", "data.num_workers=0", "data.cache_in_memory=true",
-            ],
-        )  # fmt: skip
+    cfg = compose_config("train", [
+        "backbone.pretrained=false", "backbone.image_size=96", f"task={task}", f"data.data_root={data}",
+        f"paths.cache_dir={data / 'cache'}", f"paths.log_dir={tmp / 'logs'}", "trainer=cpu",
+        "trainer.max_epochs=8", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
+        "logger=csv", "data.num_workers=0", "data.cache_in_memory=true",
+    ])  # fmt: skip
     with open_dict(cfg):
         cfg.paths.output_dir = str(tmp / "run")
     return run(cfg)

@@ -42,15 +42,6 @@ TINY_BACKBONE = [  # backbone=vit_tiny is the default of conf/train.yaml
 ]
 
 
-@pytest.fixture()
-def one_thread():
-    """The test machine is shared: one intra-op thread avoids oversubscription (restored afterwards)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
 def _compose(tmp: Path, data_root: Path, overrides: list[str]) -> DictConfig:
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(
