@@ -37,11 +37,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from data_gen.sim.contact import PairFinder, friction_terms, pair_contact, penalty_from_sdf, static_contact
+from data_gen.sim.contact import PairFinder, pair_contact, static_contact
 from data_gen.sim.contact_points import ContactPoints
+from data_gen.sim.energy.pair_contact import FROZEN, PairSet
+from data_gen.sim.energy.scene_sdf import SceneDistance
+from data_gen.sim.model import DofLayout, Model, padded_index
+from data_gen.sim.newton import NewtonSettings, minimise
 from data_gen.sim.presets import QualityPreset
-from data_gen.sim.reduced import DTYPE, ReducedObject, scatter_point_gradient, scatter_point_hessian
+from data_gen.sim.reduced import DTYPE, ReducedObject
 from data_gen.sim.static_scene import StaticScene
+from data_gen.sim.step_objective import ContactForces, StepObjective
 
 NO_PARTNER = -1  # contact partner id of a point without contact (0 is the static scene)
 # Near contact a point may move at most this many of its contact radii per sub-step. Two approaching
@@ -195,7 +200,12 @@ class ImplicitEulerSolver:
         self.radii_all = torch.cat([b.radius_m for b in bodies]) if bodies else torch.zeros(0)
         self.h = self.dt  # current (sub)step, s
         self.step_index = 0
-        self.timings: dict[str, float] = {"broad_phase": 0.0, "newton": 0.0, "forces": 0.0}
+        self.timings: dict[str, float] = {"broad_phase": 0.0, "newton": 0.0}
+        self.model = Model.build(
+            [b.model for b in bodies], [b.contact for b in bodies], [b.friction_coefficient for b in bodies]
+        )
+        self.scene_distance = SceneDistance(scene)
+        self._padded_index = [padded_index(b.model.num_handles, self.model.columns) for b in bodies]
         self.counters: dict[str, int] = dict.fromkeys(
             (
                 "evaluations",
@@ -246,20 +256,20 @@ class ImplicitEulerSolver:
                 b.static_force_n = torch.zeros_like(b.static_force_n)
             b.reset_step_forces()
         supported = np.zeros(len(self.bodies), dtype=bool)
-        for island in islands:
-            num_sub = self._island_substeps(island, positions, pairs)
+        by_substeps: dict[int, list[list[int]]] = {}
+        for island in islands:  # islands that need the same sub-steps are solved together
+            by_substeps.setdefault(self._island_substeps(island, positions, pairs), []).append(island)
+        for num_sub, group in sorted(by_substeps.items()):
             stats.substeps = max(stats.substeps, num_sub)
             self.h = self.dt / num_sub
+            members = [k for island in group for k in island]
             for _ in range(num_sub):
                 t0 = time.perf_counter()
-                pair_set = self._island_pairs(island, pairs, positions)
-                stats.newton_iterations += self._solve_island(island, pair_set, positions, self.h)
-                for k in island:
+                pair_set = self._island_pairs(members, pairs, positions)
+                stats.newton_iterations += self._solve_group(group, pair_set, self.h, stats, supported)
+                for k in members:
                     positions[k] = self.bodies[k].contact_positions()
-                t1 = time.perf_counter()
-                self._record_island_forces(island, pair_set, stats, supported)
-                self.timings["newton"] += t1 - t0
-                self.timings["forces"] += time.perf_counter() - t1
+                self.timings["newton"] += time.perf_counter() - t0
         self.h = self.dt
         self._record_sleeping_contacts(pairs, positions, stats)
         self._update_sleep(islands, supported)
@@ -299,8 +309,10 @@ class ImplicitEulerSolver:
         supported = np.zeros(len(self.bodies), dtype=bool)
         for b in self.bodies:
             b.reset_step_forces()
-        for island in self._islands(pairs):
-            self._record_island_forces(island, self._island_pairs(island, pairs, positions), stats, supported)
+        islands = self._islands(pairs)
+        if islands:
+            members = [k for island in islands for k in island]
+            self._record_current_forces(islands, self._island_pairs(members, pairs, positions), stats, supported)
         return stats
 
     def energies(self) -> dict[str, float]:
@@ -435,249 +447,152 @@ class ImplicitEulerSolver:
             oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, torch.from_numpy(gi), torch.from_numpy(gj)
         )
 
-    # ------------------------------------------------------------------ Newton
-    def _solve_island(self, island: list[int], ps: _PairSet, positions: list[torch.Tensor], h: float) -> int:
-        bodies = [self.bodies[k] for k in island]
-        local = {k: a for a, k in enumerate(island)}
-        self.counters["island_solves"] += 1
-        self.counters["island_object_solves"] += len(island)
-        sizes = [b.model.num_dofs for b in bodies]
-        offs = np.cumsum([0] + sizes)
-        point_offs = np.cumsum([0] + [b.contact.num_points for b in bodies])
-        q_n = torch.cat([b.q for b in bodies])
-        q_pred = torch.cat([b.q + h * b.qdot for b in bodies])
-        mass = torch.block_diag(*[b.model.mass_matrix for b in bodies])
-        # lagged friction and contact data frozen at the start of the step
-        starts = []
-        for k in island:
-            b = self.bodies[k]
-            pc, depth, normal = static_contact(
-                positions[k], b.radius_m, _scalar(self.stiffness(k)), self.scene
+    # ------------------------------------------------------------------ Newton on a group of islands
+    def _padded_states(self, objects: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Padded (n, 3, K) states q and rates qdot of some bodies."""
+        k = self.model.columns
+        tm = torch.zeros(len(objects), 3 * k, dtype=DTYPE)
+        tmdot = torch.zeros_like(tm)
+        for slot, o in enumerate(objects):  # once per solve
+            index = self._padded_index[o]
+            tm[slot, index] = self.bodies[o].q
+            tmdot[slot, index] = self.bodies[o].qdot
+        return tm.reshape(-1, 3, k), tmdot.reshape(-1, 3, k)
+
+    def _group_pairs(self, objects: list[int], slot_of: np.ndarray, ps: _PairSet, model: Model) -> PairSet:
+        """The candidate pairs of a solve in solved-object slots (sleeping partners frozen)."""
+        obj_j = slot_of[ps.obj_j]
+        frozen = obj_j < 0
+        x_frozen = torch.zeros(len(obj_j), 3, dtype=DTYPE)
+        if frozen.any():
+            x_frozen[torch.from_numpy(frozen)] = ps.x0_j[torch.from_numpy(frozen)]
+        return PairSet(
+            obj_i=torch.from_numpy(slot_of[ps.obj_i]),
+            sph_i=torch.from_numpy(ps.loc_i),
+            obj_j=torch.from_numpy(np.where(frozen, FROZEN, obj_j)),
+            sph_j=torch.from_numpy(ps.loc_j),
+            frozen_x_j=x_frozen,
+            stiffness_n_m=ps.stiffness_n_m,
+            radius_sum_m=ps.radius_sum_m,
+            friction=ps.mu * (ps.lam_n > 0),
+            normal_force_n=ps.lam_n,
+            normal0=ps.normal0,
+            x0_i=ps.x0_i,
+            x0_j=ps.x0_j,
+        )
+
+    def _solve_group(self, islands: list[list[int]], ps: _PairSet, h: float, stats: StepStats,
+                     supported: np.ndarray) -> int:
+        """One implicit Euler (sub)step of size h for several independent islands at once; records the
+        contact forces of the final state. Returns the Newton iterations summed over the islands."""
+        objects = [k for island in islands for k in island]
+        island_slot = torch.tensor([a for a, island in enumerate(islands) for _ in island], dtype=torch.int64)
+        slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
+        slot_of[objects] = np.arange(len(objects))
+        self.counters["island_solves"] += len(islands)
+        self.counters["island_object_solves"] += len(objects)
+        model = self.model.select(torch.tensor(objects, dtype=torch.int64))
+        layout = DofLayout.build(model.num_handles, island_slot, model.columns)
+        tm_n, tmdot = self._padded_states(objects)
+        objective = StepObjective(
+            model, layout, self.scene_distance, self.gravity, tm_n, tmdot, h,
+            self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
+            self._group_pairs(objects, slot_of, ps, model),
+        )  # fmt: skip
+
+        def check_gradient(grad: torch.Tensor) -> None:
+            bad = ~torch.isfinite(layout.to_objects(grad).reshape(len(objects), -1)).all(1)
+            if bool(bad.any()):
+                self._check_finite([objects[int(torch.nonzero(bad)[0])]], [torch.tensor([float("nan")])],
+                                   "objective gradient")  # fmt: skip
+
+        def indefinite(still: torch.Tensor) -> None:
+            island = islands[int(torch.nonzero(still)[0])]
+            names = ", ".join(self.bodies[k].name for k in island)
+            raise SimulationError(
+                f"step {self.step_index}: Newton matrix of objects [{names}] is not "
+                f"positive definite (non-finite or degenerate cubature)"
             )
-            lam = self.stiffness(k) * depth.clamp(min=0.0)
-            starts.append((positions[k], lam, normal))
-        total_mass = sum(b.model.mass_kg for b in bodies)
-        motion = (q_pred - q_n) @ (mass @ (q_pred - q_n))
-        scale = (
-            float(torch.sqrt(motion))
-            + h * h * float(self.gravity.norm()) * np.sqrt(total_mass)
-            + 1e-9 * np.sqrt(total_mass)
-        )
-        smoothing_m = self.preset.friction_smoothing_m_s * h
 
-        def split(q: torch.Tensor) -> list[torch.Tensor]:
-            return [q[offs[a] : offs[a + 1]] for a in range(len(bodies))]
+        q0 = layout.to_islands(tm_n + h * tmdot)
+        result = minimise(
+            objective, q0, objective.motion_scale(), objective.trust_radius(),
+            NewtonSettings(self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps),
+            on_gradient=check_gradient, on_indefinite=indefinite,
+        )  # fmt: skip
+        for key, value in result.counters.items():
+            self.counters[key] += value
+        tm = layout.to_objects(result.q)
+        for slot, o in enumerate(objects):
+            q = tm[slot].reshape(-1)[self._padded_index[o]]
+            self._check_finite([o], [q], "reduced state q")
+        for slot, o in enumerate(objects):
+            b = self.bodies[o]
+            q = tm[slot].reshape(-1)[self._padded_index[o]].clone()
+            b.qdot = (q - b.q) / h
+            b.q = q
+        self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model, h, stats, supported)
+        return int(result.iterations.sum())
 
-        def evaluate(q: torch.Tensor, derivs: bool, strict: bool = False):
-            self.counters["evaluations_with_derivatives" if derivs else "evaluations"] += 1
-            dq = q - q_pred
-            m_dq = mass @ dq
-            value = 0.5 * float(dq @ m_dq)
-            grad = m_dq.clone() if derivs else None
-            hess = mass.clone() if derivs else None
-            qs = split(q)
-            xs = {k: bodies[a].contact_positions(qs[a]) for a, k in enumerate(island)}
-            sdf_all, normal_all = self.scene.query(torch.cat(list(xs.values())))  # one query per island
-            sdf_all, normal_all = torch.from_numpy(sdf_all), torch.from_numpy(normal_all)
-            for a, b in enumerate(bodies):
-                model, qa = b.model, qs[a]
-                sl = slice(offs[a], offs[a + 1])
-                x = xs[island[a]]
-                pts = slice(point_offs[a], point_offs[a + 1])
-                e = model.elastic_energy(qa) + model.gravity_energy(qa, self.gravity)
-                pc, _, _ = penalty_from_sdf(
-                    sdf_all[pts], normal_all[pts], b.radius_m, _scalar(self.stiffness(island[a]))
-                )
-                e += pc.energy
-                terms = [pc]
-                x_start, lam, n0 = starts[a]
-                if b.friction_coefficient > 0 and bool((lam > 0).any()):
-                    fr = friction_terms(x - x_start, lam, n0, _scalar(b.friction_coefficient), smoothing_m)
-                    e += fr.energy
-                    terms.append(fr)
-                value += h * h * e
-                if derivs:
-                    g = model.elastic_gradient(qa) + model.gravity_gradient(self.gravity)
-                    kmat = model.elastic_hessian(qa, strict=strict)
-                    for t in terms:
-                        act = t.hess_x.abs().sum(dim=(1, 2)) > 0
-                        if bool(act.any()):
-                            g = g + scatter_point_gradient(b.contact.b[act], t.grad_x[act])
-                            kmat = kmat + scatter_point_hessian(b.contact.b[act], t.hess_x[act])
-                    grad[sl] += h * h * g
-                    hess[sl, sl] += h * h * kmat
-            if len(ps.obj_i):
-                value += (
-                    h * h * self._pair_terms(ps, xs, local, bodies, offs, grad, hess, derivs, smoothing_m)
-                )
-            return value, grad, hess
+    def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, stats: StepStats,
+                               supported: np.ndarray) -> None:
+        """Contact forces of the current state without stepping (the initial frame): the step that led
+        here is taken to have started at ``q - h qdot``."""
+        objects = [k for island in islands for k in island]
+        slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
+        slot_of[objects] = np.arange(len(objects))
+        model = self.model.select(torch.tensor(objects, dtype=torch.int64))
+        island_slot = torch.tensor([a for a, island in enumerate(islands) for _ in island], dtype=torch.int64)
+        layout = DofLayout.build(model.num_handles, island_slot, model.columns)
+        tm, tmdot = self._padded_states(objects)
+        h = self.h
+        objective = StepObjective(
+            model, layout, self.scene_distance, self.gravity, tm - h * tmdot, tmdot, h,
+            self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
+            self._group_pairs(objects, slot_of, ps, model),
+        )  # fmt: skip
+        self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model, h, stats, supported)
 
-        q = q_n + h * torch.cat([b.qdot for b in bodies])
-        # Trust region on point motion: one Newton update moves no contact sphere further than twice the
-        # step's predicted motion plus a median contact radius.  An affine handle linearises rotations, so
-        # a thin stiff object (tiny inertia about its long axis, elastic curvature ~0 along rotations) can
-        # get Newton updates of metres that a plain backtracking search cannot shrink enough.
-        trust_m = (
-            2.0 * _max_point_motion(bodies, offs, q - q_n)
-            + h * h * float(self.gravity.norm())
-            + min(float(b.radius_m.median()) for b in bodies)
-        )
-        iterations, converged = 0, False
-        for it in range(self.preset.newton_iterations):
-            value, grad, hess = evaluate(q, True)
-            self._check_finite(island, split(grad), "objective gradient")
-            dq = self._newton_direction(hess, grad)
-            if dq is None:  # a near-SPD elastic block made the matrix indefinite: project every block
-                self.counters["strict_projections"] += 1
-                value, grad, hess = evaluate(q, True, strict=True)
-                dq = self._newton_direction(hess, grad)
-            if dq is None:
-                names = ", ".join(self.bodies[k].name for k in island)
-                raise SimulationError(
-                    f"step {self.step_index}: Newton matrix of objects [{names}] is not "
-                    f"positive definite (non-finite or degenerate cubature)"
-                )
-            iterations = it + 1
-            slope = float(grad @ dq)
-            alpha = min(1.0, trust_m / max(_max_point_motion(bodies, offs, dq), 1e-300))
-            if alpha < 1.0:
-                self.counters["trust_limited_steps"] += 1
-            accepted = False
-            for trial_index in range(self.preset.line_search_steps + _EXTRA_HALVINGS):
-                trial, _, _ = evaluate(q + alpha * dq, False)
-                if trial_index < self.preset.line_search_steps:
-                    accepted = trial <= value + _ARMIJO_C * alpha * slope + 1e-14 * abs(value)
-                else:  # Armijo failed within the preset's budget: any decrease beats standing still
-                    accepted = trial < value
-                if accepted:
-                    if trial_index >= self.preset.line_search_steps:
-                        self.counters["line_search_extended"] += 1
-                    break
-                alpha *= 0.5
-            if not accepted:
-                self.counters["line_search_failures"] += 1
-                break
-            q = q + alpha * dq
-            step_norm = alpha * float(torch.sqrt((dq @ (mass @ dq)).clamp(min=0.0)))
-            if step_norm <= self.preset.newton_tolerance * scale:
-                converged = True
-                break
-        if not converged:
-            self.counters["unconverged_solves"] += 1
-        qs = split(q)
-        self._check_finite(island, qs, "reduced state q")
-        for a, b in enumerate(bodies):
-            b.qdot = (qs[a] - b.q) / h
-            b.q = qs[a].clone()
-        return iterations
-
-    @staticmethod
-    def _newton_direction(hess: torch.Tensor, grad: torch.Tensor) -> torch.Tensor | None:
-        """Solve hess dq = -grad by Cholesky (a 1e-10 relative ridge if needed); None if not PD."""
-        hess = 0.5 * (hess + hess.T)
-        chol, info = torch.linalg.cholesky_ex(hess)
-        if int(info) != 0:
-            ridge = 1e-10 * float(hess.diagonal().abs().max())
-            chol, info = torch.linalg.cholesky_ex(hess + ridge * torch.eye(hess.shape[0], dtype=DTYPE))
-        if int(info) != 0:
-            return None
-        return -torch.cholesky_solve(grad[:, None], chol)[:, 0]
-
-    def _check_finite(self, island: list[int], parts: list[torch.Tensor], quantity: str) -> None:
-        for k, part in zip(island, parts):
+    def _check_finite(self, objects: list[int], parts: list[torch.Tensor], quantity: str) -> None:
+        for k, part in zip(objects, parts):
             if not bool(torch.isfinite(part).all()):
                 raise SimulationError(
                     f"object {self.bodies[k].name!r} (id {self.bodies[k].object_id}), "
                     f"step {self.step_index}: non-finite {quantity}"
                 )
 
-    def _pair_terms(
-        self, ps: _PairSet, xs: dict, local: dict, bodies, offs, grad, hess, derivs: bool, smoothing_m: float
-    ) -> float:
-        """Object-object contact and friction; adds h^2-free derivatives scaled by h^2 into grad/hess."""
-        h2 = self.h * self.h
-        xi, xj = self._gather(ps, xs)
-        pc = pair_contact(xi, xj, ps.radius_sum_m, ps.stiffness_n_m)
-        energy = pc.energy
-        g_i, h_ij = pc.grad_i, pc.hess
-        fric = (ps.mu > 0) & (ps.lam_n > 0)
-        if bool(fric.any()):
-            slip = (xi - ps.x0_i) - (xj - ps.x0_j)
-            fr = friction_terms(slip, ps.lam_n * fric, ps.normal0, ps.mu, smoothing_m)
-            energy += fr.energy
-            g_i, h_ij = g_i + fr.grad_x, h_ij + fr.hess_x
-        if not derivs:
-            return energy
-        active = h_ij.abs().sum(dim=(1, 2)) > 0
-        obj_pairs = np.unique(np.stack([ps.obj_i[active.numpy()], ps.obj_j[active.numpy()]], 1), axis=0)
-        for a, c in obj_pairs:  # loop over object pairs
-            sel = torch.from_numpy((ps.obj_i == a) & (ps.obj_j == c)) & active
-            bi = self.bodies[a].contact.b[torch.from_numpy(ps.loc_i)[sel]]
-            bj = self.bodies[c].contact.b[torch.from_numpy(ps.loc_j)[sel]]
-            gi, hp = g_i[sel], h_ij[sel]
-            sa = slice(offs[local[a]], offs[local[a] + 1])
-            grad[sa] += h2 * scatter_point_gradient(bi, gi)
-            hess[sa, sa] += h2 * scatter_point_hessian(bi, hp)
-            if c in local:
-                sc = slice(offs[local[c]], offs[local[c] + 1])
-                grad[sc] -= h2 * scatter_point_gradient(bj, gi)
-                hess[sc, sc] += h2 * scatter_point_hessian(bj, hp)
-                cross = scatter_point_hessian(bi, hp, bj)
-                hess[sa, sc] -= h2 * cross
-                hess[sc, sa] -= h2 * cross.T
-        return energy
-
-    def _gather(self, ps: _PairSet, xs: dict) -> tuple[torch.Tensor, torch.Tensor]:
-        """Positions of both sides of every pair: island objects from ``xs``, the others (asleep) frozen."""
-        x_all = torch.cat([xs[k] if k in xs else b.contact_positions() for k, b in enumerate(self.bodies)])
-        return x_all[ps.global_i], x_all[ps.global_j]
-
     # ------------------------------------------------------------------ force recording
-    def _record_island_forces(
-        self, island: list[int], ps: _PairSet, stats: StepStats, supported: np.ndarray
-    ) -> None:
-        """Per-point contact forces (N) on the final state, dominant partner ids, per-pair totals."""
-        h = self.h
-        smoothing_m = self.preset.friction_smoothing_m_s * h
-        xs = {}
-        for k in island:
-            b = self.bodies[k]
-            x = b.contact_positions()
-            xs[k] = x
-            pc, depth, normal = static_contact(x, b.radius_m, _scalar(self.stiffness(k)), self.scene)
-            force = -pc.grad_x
-            x_start, lam0, n0 = b.contact_positions(b.q - h * b.qdot), None, None
-            if b.friction_coefficient > 0:
-                _, depth0, n0 = static_contact(x_start, b.radius_m, _scalar(self.stiffness(k)), self.scene)
-                lam0 = self.stiffness(k) * depth0.clamp(min=0.0)
-                if bool((lam0 > 0).any()):
-                    fr = friction_terms(x - x_start, lam0, n0, _scalar(b.friction_coefficient), smoothing_m)
-                    force = force - fr.grad_x
-            b.static_force_n = force
+    def _record_group_forces(self, objects: list[int], forces: ContactForces, ps: _PairSet, pairs: PairSet,
+                             model: Model, h: float, stats: StepStats, supported: np.ndarray) -> None:
+        """Per-sphere contact forces (N) of the final state, dominant partner ids, per-pair totals, from
+        the forces the objective evaluated (nothing is recomputed here)."""
+        force = forces.scene_force_n * model.sphere_valid[:, :, None]
+        mag = force.norm(dim=2)  # (n, S)
+        total = force.sum(1)
+        weight = mag.sum(1).clamp(min=1e-300)
+        x = forces.sphere_positions_m
+        pos = (mag[:, :, None] * x).sum(1) / weight[:, None]
+        nrm = (mag[:, :, None] * forces.scene_normals).sum(1)
+        nrm = nrm / nrm.norm(dim=1, keepdim=True).clamp(min=1e-300)
+        touching = (mag > 0).any(1).numpy()
+        total_np, pos_np, nrm_np = total.numpy(), pos.numpy(), nrm.numpy()
+        for slot, o in enumerate(objects):  # once per (sub)step: bookkeeping only
+            b = self.bodies[o]
+            b.static_force_n = force[slot, : b.contact.num_points].clone()
             b.reset_step_forces()  # pair forces are added below
-            in_contact = force.norm(dim=1) > 0
-            if bool(in_contact.any()):
-                supported[k] = True
-                mag = force.norm(dim=1)
-                total = force.sum(0).numpy()
-                pos = ((mag[:, None] * x).sum(0) / mag.sum()).numpy()
-                nrm = ((mag[:, None] * normal).sum(0)).numpy()
-                b.static_summary = (total, pos, nrm / max(float(np.linalg.norm(nrm)), 1e-300))
-                stats.add_pair_force((b.object_id, 0), *b.static_summary, self.h)
+            if touching[slot]:
+                supported[o] = True
+                b.static_summary = (total_np[slot], pos_np[slot], nrm_np[slot])
+                stats.add_pair_force((b.object_id, 0), *b.static_summary, h)
             else:
                 b.static_summary = None
-        if not len(ps.obj_i):
+        if pairs.num_pairs == 0:
             return
-        xi, xj = self._gather(ps, xs)
-        pc = pair_contact(xi, xj, ps.radius_sum_m, ps.stiffness_n_m)
-        f_i = -pc.grad_i
-        fric = (ps.mu > 0) & (ps.lam_n > 0)
-        if bool(fric.any()):
-            slip = (xi - ps.x0_i) - (xj - ps.x0_j)
-            f_i = f_i - friction_terms(slip, ps.lam_n * fric, ps.normal0, ps.mu, smoothing_m).grad_x
+        xi, xj = pairs.positions(x)
         self._accumulate_pair_forces(
-            ps.obj_i, ps.loc_i, ps.obj_j, ps.loc_j, xi, xj, f_i, pc.normal_ji, stats, supported
-        )
+            ps.obj_i, ps.loc_i, ps.obj_j, ps.loc_j, xi, xj, forces.pair_force_i_n, forces.pair_normals, stats,
+            supported,
+        )  # fmt: skip
 
     def _record_sleeping_contacts(
         self, pairs: np.ndarray, positions: list[torch.Tensor], stats: StepStats
@@ -755,13 +670,6 @@ class ImplicitEulerSolver:
                 total, nrm = -total, -nrm
             key = (min(ba.object_id, bc.object_id), max(ba.object_id, bc.object_id))
             stats.add_pair_force(key, total, pos, nrm / max(float(np.linalg.norm(nrm)), 1e-300), self.h)
-
-
-def _max_point_motion(bodies: list[SimBody], offsets: np.ndarray, dq: torch.Tensor) -> float:
-    """Largest contact-sphere displacement (m) of the island's objects under a state change dq."""
-    return max(
-        float(b.contact.velocities(dq[offsets[a] : offsets[a + 1]]).norm(dim=1).max()) for a, b in enumerate(bodies)
-    )
 
 
 def _assign_partner(body: SimBody, local: torch.Tensor, magnitude: torch.Tensor, partner_id: int) -> None:

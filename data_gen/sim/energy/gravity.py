@@ -1,0 +1,16 @@
+"""Gravity potential ``-sum_p m_p g . u_p = -g . Tm (sum_p m_p b_p)`` per object, J (linear in q)."""
+
+from __future__ import annotations
+
+import torch
+
+from data_gen.sim.energy.terms import ObjectTerms
+
+
+def gravity(mass_b_sum: torch.Tensor, gravity_m_s2: torch.Tensor, tm: torch.Tensor, derivatives: bool) -> ObjectTerms:
+    """``mass_b_sum`` (n, K) kg, gravity (3,) m/s^2, states (n, 3, K)."""
+    energy = -torch.einsum("r,nrk,nk->n", gravity_m_s2, tm, mass_b_sum)
+    if not derivatives:
+        return ObjectTerms(energy)
+    grad = -gravity_m_s2[None, :, None] * mass_b_sum[:, None, :]
+    return ObjectTerms(energy, grad, None)  # zero Hessian

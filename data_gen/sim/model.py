@@ -1,0 +1,210 @@
+"""The fixed part of a simulation: every object's reduced model stacked into padded batch tensors.
+
+Objects differ in handle count ``H`` (1 for near-rigid objects, up to the preset's cap for soft ones), in
+cubature count and in contact-sphere count.  :class:`Model` pads them to common sizes so that one batched
+tensor operation evaluates an energy term for many objects at once:
+
+* handle columns ``K = 4 max(H)``: an object's affine-basis rows ``b`` (4H,) and deformation bases ``C``
+  (4H,3) are zero beyond ``4H``; its reduced state in *padded q-ordering* is the (3, K) matrix ``Tm``
+  with zero columns beyond ``4H`` (the unpadded q-ordering of :mod:`data_gen.sim.reduced` is the
+  row-major flattening of the first ``4H`` columns);
+* cubature points ``P = max`` count: padded points have zero volume (no energy, gradient or Hessian);
+* contact spheres ``S = max`` count: padded spheres are masked (``sphere_valid``), radius 0.
+
+:meth:`Model.select` takes the rows of some objects (e.g. the awake objects solved together);
+:class:`DofLayout` maps their padded (3, K) states to and from the flat unpadded vectors that Newton's
+method solves for, one vector per island.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+
+from data_gen.sim.contact_points import ContactPoints
+from data_gen.sim.reduced import DTYPE, NEAR_SPD_TOLERANCE, ReducedObject
+
+
+@dataclass(frozen=True)
+class Model:
+    """Padded per-object arrays (leading dimension: objects, in body order). Units: m, kg, Pa, m^3.
+
+    Attributes:
+        num_handles: (n,) int64 handle count H per object.
+        mass_kg: (n,) object masses.
+        mass_matrix: (n, 3K, 3K) reduced mass ``I3 (x) M4`` in padded q-ordering (identity on padding).
+        mass_b_sum: (n, K) ``sum_p m_p b_p`` (gravity potential and centre of mass).
+        cub_c: (n, P, K, 3) deformation bases ``C_i`` of the cubature points (a one-handle object, whose
+            ``F`` is uniform, keeps one point with its whole volume).
+        cub_volume_m3: (n, P) cubature volumes (0 on padding).
+        mu_pa, lam_pa: (n,) Lamé parameters.
+        spd_tolerance_pa: (n,) near-SPD test tolerance of the elastic blocks (``NEAR_SPD_TOLERANCE mu``).
+        sphere_rest_m: (n, S, 3) contact sphere centres at rest (object frame).
+        sphere_b: (n, S, K) affine basis rows of the sphere centres.
+        sphere_radius_m: (n, S) radii (0 on padding).
+        sphere_valid: (n, S) bool.
+        friction: (n,) Coulomb coefficients.
+    """
+
+    num_handles: torch.Tensor
+    mass_kg: torch.Tensor
+    mass_matrix: torch.Tensor
+    mass_b_sum: torch.Tensor
+    cub_c: torch.Tensor
+    cub_volume_m3: torch.Tensor
+    mu_pa: torch.Tensor
+    lam_pa: torch.Tensor
+    spd_tolerance_pa: torch.Tensor
+    sphere_rest_m: torch.Tensor
+    sphere_b: torch.Tensor
+    sphere_radius_m: torch.Tensor
+    sphere_valid: torch.Tensor
+    friction: torch.Tensor
+
+    @staticmethod
+    def build(models: list[ReducedObject], contacts: list[ContactPoints], friction: list[float]) -> Model:
+        """Stack the objects' reduced models and contact spheres (same order as the bodies)."""
+        n = len(models)
+        k = 4 * max((m.num_handles for m in models), default=1)
+        # a one-handle object deforms affinely: F is the same at every cubature point, so one point
+        # carrying the whole volume integrates its elastic energy exactly
+        p = max([m.num_points for m in models if m.num_handles > 1] + [1])
+        s = max((c.num_points for c in contacts), default=1)
+        mass_matrix = torch.eye(3 * k, dtype=DTYPE).repeat(n, 1, 1)
+        mass_b_sum = torch.zeros(n, k, dtype=DTYPE)
+        cub_c = torch.zeros(n, p, k, 3, dtype=DTYPE)
+        cub_volume = torch.zeros(n, p, dtype=DTYPE)
+        sphere_rest = torch.zeros(n, s, 3, dtype=DTYPE)
+        sphere_b = torch.zeros(n, s, k, dtype=DTYPE)
+        sphere_radius = torch.zeros(n, s, dtype=DTYPE)
+        sphere_valid = torch.zeros(n, s, dtype=torch.bool)
+        for o, (m, c) in enumerate(zip(models, contacts)):  # once, at set-up
+            k_o = 4 * m.num_handles
+            index = padded_index(m.num_handles, k)
+            mass_matrix[o][index[:, None], index[None, :]] = m.mass_matrix
+            mass_b_sum[o, :k_o] = m.mass_b_sum
+            if m.num_handles == 1:
+                cub_c[o, 0, :k_o] = m.c[0]
+                cub_volume[o, 0] = m.volumes_m3.sum()
+            else:
+                cub_c[o, : m.num_points, :k_o] = m.c
+                cub_volume[o, : m.num_points] = m.volumes_m3
+            sphere_rest[o, : c.num_points] = c.rest_m
+            sphere_b[o, : c.num_points, :k_o] = c.b
+            sphere_radius[o, : c.num_points] = c.radius_m
+            sphere_valid[o, : c.num_points] = True
+        mu = torch.tensor([m.mu_pa for m in models], dtype=DTYPE)
+        return Model(
+            num_handles=torch.tensor([m.num_handles for m in models], dtype=torch.int64),
+            mass_kg=torch.tensor([m.mass_kg for m in models], dtype=DTYPE),
+            mass_matrix=mass_matrix,
+            mass_b_sum=mass_b_sum,
+            cub_c=cub_c,
+            cub_volume_m3=cub_volume,
+            mu_pa=mu,
+            lam_pa=torch.tensor([m.lam_pa for m in models], dtype=DTYPE),
+            spd_tolerance_pa=NEAR_SPD_TOLERANCE * mu,
+            sphere_rest_m=sphere_rest,
+            sphere_b=sphere_b,
+            sphere_radius_m=sphere_radius,
+            sphere_valid=sphere_valid,
+            friction=torch.tensor(list(friction), dtype=DTYPE),
+        )
+
+    @property
+    def num_objects(self) -> int:
+        return int(self.mass_kg.shape[0])
+
+    @property
+    def columns(self) -> int:
+        """K = 4 max(H)."""
+        return int(self.sphere_b.shape[2])
+
+    def select(self, objects: torch.Tensor) -> Model:
+        """The rows of ``objects`` (int64 indices), same padding."""
+        return Model(**{f.name: getattr(self, f.name)[objects] for f in fields(self)})
+
+    def sphere_positions(self, tm: torch.Tensor) -> torch.Tensor:
+        """World sphere centres (n, S, 3), m, of padded states ``tm`` (n, 3, K): ``x = x0 + Tm b``."""
+        return self.sphere_rest_m + self.sphere_b @ tm.transpose(1, 2)
+
+
+def padded_index(num_handles: int, columns: int) -> torch.Tensor:
+    """Positions (12H,) of an object's unpadded q-ordering ``q[r 4H + a]`` in the padded (3, K) layout."""
+    r = torch.arange(3)[:, None]
+    a = torch.arange(4 * num_handles)[None, :]
+    return (r * columns + a).reshape(-1)
+
+
+@dataclass(frozen=True)
+class DofLayout:
+    """Where the padded (3, K) states of some objects live in per-island flat vectors.
+
+    Attributes:
+        island: (n,) island slot of each object.
+        flat_index: (n, 3K) index into the (num_islands * N) flat island vectors, -1 on padded entries.
+        num_islands, island_size: N = the largest island's unpadded DOF count.
+    """
+
+    island: torch.Tensor
+    flat_index: torch.Tensor
+    num_islands: int
+    island_size: int
+
+    @staticmethod
+    def build(num_handles: torch.Tensor, island: torch.Tensor, columns: int) -> DofLayout:
+        n = int(num_handles.shape[0])
+        num_islands = int(island.max()) + 1 if n else 0
+        dofs = (12 * num_handles).numpy()
+        offsets = np.zeros(n, dtype=np.int64)
+        sizes = np.zeros(max(num_islands, 1), dtype=np.int64)
+        for o in range(n):  # once per solve: objects in island order
+            offsets[o] = sizes[int(island[o])]
+            sizes[int(island[o])] += dofs[o]
+        size = int(sizes.max()) if n else 0
+        flat = torch.full((n, 3 * columns), -1, dtype=torch.int64)
+        for o in range(n):
+            pos = padded_index(int(num_handles[o]), columns)
+            flat[o, pos] = int(island[o]) * size + int(offsets[o]) + torch.arange(pos.shape[0])
+        return DofLayout(island, flat, num_islands, size)
+
+    @property
+    def valid(self) -> torch.Tensor:
+        return self.flat_index >= 0
+
+    def to_islands(self, padded: torch.Tensor) -> torch.Tensor:
+        """Padded per-object vectors (n, 3, K) -> island vectors (num_islands, N)."""
+        out = torch.zeros(self.num_islands * self.island_size, dtype=padded.dtype)
+        mask = self.valid
+        out[self.flat_index[mask]] = padded.reshape(mask.shape)[mask]
+        return out.reshape(self.num_islands, self.island_size)
+
+    def to_objects(self, flat: torch.Tensor) -> torch.Tensor:
+        """Island vectors (num_islands, N) -> padded per-object vectors (n, 3, K) (zeros on padding)."""
+        f = flat.reshape(-1)
+        out = torch.where(self.valid, f[self.flat_index.clamp(min=0)], torch.zeros((), dtype=flat.dtype))
+        return out.reshape(self.flat_index.shape[0], 3, -1)
+
+    def assemble(self, blocks: torch.Tensor, rows: torch.Tensor | None = None, cols: torch.Tensor | None = None,
+                 out: torch.Tensor | None = None) -> torch.Tensor:
+        """Add object blocks (m, 3K, 3K) at (rows[m], cols[m]) (default: the diagonal) into island matrices
+        (num_islands, N, N); padded rows/columns are dropped. Cross blocks must pair objects of one island."""
+        n_isl, size = self.num_islands, self.island_size
+        if out is None:
+            out = torch.zeros(n_isl * size * size, dtype=blocks.dtype)
+        else:
+            out = out.reshape(-1)
+        objects = torch.arange(self.flat_index.shape[0])
+        rows = objects if rows is None else rows
+        cols = rows if cols is None else cols
+        fr = self.flat_index[rows]  # (m, 3K) flat = island * N + local
+        fc = self.flat_index[cols]
+        island = (fr.clamp(min=0) // max(size, 1))[:, :1]
+        local_r = fr - island * size
+        local_c = fc - island * size
+        mask = (fr >= 0)[:, :, None] & (fc >= 0)[:, None, :]
+        index = (island[:, :, None] * size + local_r[:, :, None]) * size + local_c[:, None, :]
+        out.index_add_(0, index[mask], blocks[mask])
+        return out.reshape(n_isl, size, size)

@@ -1,0 +1,163 @@
+"""Newton's method on many independent islands at once, with a trust region and a backtracking line search.
+
+Each island ``i`` minimises its own objective ``f_i(q_i)``; the islands share one batched evaluation
+(:class:`Objective`) but every decision is per island: the Newton direction (batched Cholesky of the
+(islands, N, N) matrices, a relative ridge where needed, and an all-blocks-projected re-evaluation for an
+island whose matrix is still indefinite), the trust radius on contact-sphere motion, the Armijo search
+(then plain decrease for ``extra_halvings`` more halvings), and convergence (``alpha |dq|_M <= tol scale_i``).
+A converged or stalled island stops moving while the others go on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+ARMIJO_C = 1e-4
+EXTRA_HALVINGS = 20
+
+
+@dataclass
+class Evaluation:
+    """Objective per island (n_isl,); gradient (n_isl, N) and matrix (n_isl, N, N) when asked."""
+
+    value: torch.Tensor
+    grad: torch.Tensor | None = None
+    hess: torch.Tensor | None = None
+
+
+class Objective:
+    """What :func:`minimise` needs from a step: evaluations and sizes, all in island vectors (n_isl, N)."""
+
+    def evaluate(self, q: torch.Tensor, derivatives: bool, strict_islands: torch.Tensor | None = None) -> Evaluation:
+        raise NotImplementedError
+
+    def mass_norm(self, dq: torch.Tensor) -> torch.Tensor:
+        """|dq|_M per island."""
+        raise NotImplementedError
+
+    def point_motion(self, dq: torch.Tensor) -> torch.Tensor:
+        """Largest contact-sphere displacement (m) per island under the state change dq."""
+        raise NotImplementedError
+
+
+@dataclass
+class NewtonSettings:
+    iterations: int
+    tolerance: float
+    line_search_steps: int
+
+
+@dataclass
+class NewtonResult:
+    q: torch.Tensor
+    iterations: torch.Tensor  # (n_isl,) Newton iterations taken
+    converged: torch.Tensor
+    counters: dict[str, int]
+
+
+def newton_direction(hess: torch.Tensor, grad: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Solve ``hess dq = -grad`` per island by Cholesky (with a 1e-10 relative ridge where needed).
+
+    Returns dq (n_isl, N) and a (n_isl,) bool: True where the matrix was positive definite."""
+    hess = 0.5 * (hess + hess.transpose(1, 2))
+    chol, info = torch.linalg.cholesky_ex(hess)
+    bad = info != 0
+    if bool(bad.any()):
+        ridge = 1e-10 * hess[bad].diagonal(dim1=1, dim2=2).abs().amax(dim=1)
+        eye = torch.eye(hess.shape[1], dtype=hess.dtype)
+        chol_r, info_r = torch.linalg.cholesky_ex(hess[bad] + ridge[:, None, None] * eye)
+        chol = chol.clone()
+        chol[bad] = chol_r
+        ok = torch.ones_like(bad)
+        ok[bad] = info_r == 0
+    else:
+        ok = ~bad
+    safe = torch.where(ok[:, None, None], chol, torch.eye(hess.shape[1], dtype=hess.dtype))
+    dq = -torch.cholesky_solve(grad[:, :, None], safe)[:, :, 0]
+    return torch.where(ok[:, None], dq, torch.zeros((), dtype=dq.dtype)), ok
+
+
+def minimise(
+    objective: Objective,
+    q0: torch.Tensor,
+    scale: torch.Tensor,
+    trust_m: torch.Tensor,
+    settings: NewtonSettings,
+    on_gradient: Callable[[torch.Tensor], None] | None = None,
+    on_indefinite: Callable[[torch.Tensor], None] | None = None,
+) -> NewtonResult:
+    """Minimise every island from ``q0`` (n_isl, N).
+
+    Args:
+        scale: (n_isl,) motion scale of the step; an island converges when its update's mass norm falls
+            below ``settings.tolerance * scale``.
+        trust_m: (n_isl,) the largest contact-sphere displacement one update may make, m.
+        on_gradient: called with every gradient (checks finiteness; may raise).
+        on_indefinite: called with the (n_isl,) mask of islands whose matrix stays indefinite after the
+            strict projection (should raise).
+    """
+    counters = dict.fromkeys(
+        ("evaluations", "evaluations_with_derivatives", "strict_projections", "line_search_failures",
+         "line_search_extended", "trust_limited_steps", "unconverged_solves"), 0)  # fmt: skip
+    n_isl = q0.shape[0]
+    q = q0.clone()
+    active = torch.ones(n_isl, dtype=torch.bool)
+    converged = torch.zeros(n_isl, dtype=torch.bool)
+    iterations = torch.zeros(n_isl, dtype=torch.int64)
+    for _ in range(settings.iterations):
+        ev = objective.evaluate(q, True)
+        counters["evaluations_with_derivatives"] += 1
+        if on_gradient is not None:
+            on_gradient(ev.grad)
+        dq, ok = newton_direction(ev.hess, ev.grad)
+        failed = active & ~ok
+        if bool(failed.any()):  # a near-SPD elastic block made the matrix indefinite: project every block
+            counters["strict_projections"] += int(failed.sum())
+            strict = objective.evaluate(q, True, strict_islands=failed)
+            counters["evaluations_with_derivatives"] += 1
+            dq_s, ok_s = newton_direction(strict.hess[failed], strict.grad[failed])
+            if not bool(ok_s.all()):
+                still = failed.clone()
+                still[failed] = ~ok_s
+                if on_indefinite is not None:
+                    on_indefinite(still)
+                raise RuntimeError("Newton matrix not positive definite")
+            dq[failed] = dq_s
+            ev.value[failed] = strict.value[failed]
+            ev.grad[failed] = strict.grad[failed]
+        iterations += active.to(torch.int64)
+        dq = dq * active[:, None]
+        slope = (ev.grad * dq).sum(1)
+        motion = objective.point_motion(dq)
+        alpha = torch.clamp(trust_m / motion.clamp(min=1e-300), max=1.0)
+        counters["trust_limited_steps"] += int((active & (alpha < 1.0)).sum())
+        accepted = ~active  # islands that are done need no search
+        for trial_index in range(settings.line_search_steps + EXTRA_HALVINGS):
+            trial = objective.evaluate(q + alpha[:, None] * dq * (~accepted)[:, None], False).value
+            counters["evaluations"] += 1
+            if trial_index < settings.line_search_steps:
+                ok_t = trial <= ev.value + ARMIJO_C * alpha * slope + 1e-14 * ev.value.abs()
+            else:  # Armijo failed within the preset's budget: any decrease beats standing still
+                ok_t = trial < ev.value
+            newly = ok_t & ~accepted
+            if trial_index >= settings.line_search_steps:
+                counters["line_search_extended"] += int(newly.sum())
+            accepted = accepted | newly
+            if bool(accepted.all()):
+                break
+            alpha = torch.where(accepted, alpha, 0.5 * alpha)
+        failed_ls = active & ~accepted
+        counters["line_search_failures"] += int(failed_ls.sum())
+        moving = active & accepted
+        q = q + (alpha * moving)[:, None] * dq
+        step_norm = alpha * objective.mass_norm(dq)
+        done = moving & (step_norm <= settings.tolerance * scale)
+        converged |= done
+        active = active & ~done & ~failed_ls
+        if not bool(active.any()):
+            break
+    counters["unconverged_solves"] += int((~converged).sum())
+    return NewtonResult(q, iterations, converged, counters)

@@ -1,0 +1,188 @@
+"""The objective of one implicit Euler (sub)step of size ``h`` for a group of independent islands.
+
+Per island, over the reduced states ``q`` of its objects (padded layout of :class:`Model`):
+
+    f(q) = sum_o 1/2 (q_o - q_pred_o)^T M_o (q_o - q_pred_o)
+           + h^2 [ elastic(q) + gravity potential(q) + scene contact + friction(q) + pair contact + friction(q) ]
+
+with ``q_pred = q_n + h qdot_n``. Every term is evaluated once per call for all objects of all islands
+(:mod:`data_gen.sim.energy`); the contact forces of the final state come from the same functions
+(:meth:`StepObjective.forces`), so the recorder reads what the solver minimised.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from data_gen.sim.energy.elastic import elastic
+from data_gen.sim.energy.terms import ObjectTerms
+from data_gen.sim.energy.gravity import gravity
+from data_gen.sim.energy.inertia import inertia
+from data_gen.sim.energy.pair_contact import PairSet, pair_contact
+from data_gen.sim.energy.scene_contact import contact_start, scene_contact
+from data_gen.sim.model import DofLayout, Model
+from data_gen.sim.newton import Evaluation, Objective
+from data_gen.sim.reduced import DTYPE
+from data_gen.sim.energy.scene_sdf import SceneDistance
+
+
+@dataclass
+class ContactForces:
+    """Contact forces of one state: per sphere from the scene (n, S, 3) N with the scene normals (n, S, 3)
+    and sphere positions (n, S, 3) m; per candidate pair the force on side i (P, 3) N and the unit normal
+    j -> i (P, 3)."""
+
+    scene_force_n: torch.Tensor
+    scene_normals: torch.Tensor
+    sphere_positions_m: torch.Tensor
+    pair_force_i_n: torch.Tensor
+    pair_normals: torch.Tensor
+
+
+class StepObjective(Objective):
+    """Objective, gradient and Newton matrix of one (sub)step, per island (see the module docstring)."""
+
+    def __init__(
+        self,
+        model: Model,
+        layout: DofLayout,
+        scene: SceneDistance,
+        gravity_m_s2: torch.Tensor,
+        tm_n: torch.Tensor,
+        tmdot: torch.Tensor,
+        h_s: float,
+        stiffness_factor: float,
+        smoothing_m: float,
+        pairs: PairSet,
+    ) -> None:
+        self.model, self.layout, self.scene, self.pairs = model, layout, scene, pairs
+        self.gravity = gravity_m_s2
+        self.h, self.h2 = h_s, h_s * h_s
+        self.tm_n = tm_n
+        self.tm_pred = tm_n + h_s * tmdot
+        self.smoothing_m = smoothing_m
+        self.scene_stiffness_n_m = stiffness_factor * model.mass_kg / self.h2
+        self.start = contact_start(
+            scene, model.sphere_positions(tm_n), model.sphere_radius_m, model.sphere_valid, self.scene_stiffness_n_m
+        )
+        rigid = model.num_handles == 1
+        self.elastic_groups = [
+            (idx, model.cub_c[idx][:, :width], model.cub_volume_m3[idx][:, :width])
+            for idx, width in ((torch.nonzero(rigid)[:, 0], 1), (torch.nonzero(~rigid)[:, 0], model.cub_c.shape[1]))
+            if len(idx)
+        ]  # one-handle objects integrate with their single cubature point
+        n_isl, size = layout.num_islands, layout.island_size
+        dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
+        self.padding = torch.arange(size)[None, :] >= dofs[:, None]  # (n_isl, N) unused island entries
+        self.island_mass_kg = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)
+        radii = torch.where(model.sphere_valid, model.sphere_radius_m, torch.tensor(float("nan"), dtype=DTYPE))
+        median = radii.nanmedian(dim=1).values
+        self.min_median_radius_m = torch.full((n_isl,), float("inf"), dtype=DTYPE).scatter_reduce(
+            0, layout.island, median, reduce="amin"
+        )
+
+    # -- sizes of the step
+    def _per_island(self, per_object: torch.Tensor, reduce: str = "sum") -> torch.Tensor:
+        out = torch.zeros(self.layout.num_islands, dtype=DTYPE)
+        if reduce == "sum":
+            return out.index_add_(0, self.layout.island, per_object)
+        return out.scatter_reduce(0, self.layout.island, per_object, reduce=reduce, include_self=True)
+
+    def _object_mass_norm2(self, dtm: torch.Tensor) -> torch.Tensor:
+        flat = dtm.reshape(dtm.shape[0], -1, 1)
+        return (flat[:, :, 0] * (self.model.mass_matrix @ flat)[:, :, 0]).sum(1)
+
+    def mass_norm(self, dq: torch.Tensor) -> torch.Tensor:
+        return self._per_island(self._object_mass_norm2(self.layout.to_objects(dq))).clamp(min=0.0).sqrt()
+
+    def point_motion(self, dq: torch.Tensor) -> torch.Tensor:
+        return self._point_motion_objects(self.layout.to_objects(dq))
+
+    def _point_motion_objects(self, dtm: torch.Tensor) -> torch.Tensor:
+        move = (self.model.sphere_b @ dtm.transpose(1, 2)).norm(dim=2) * self.model.sphere_valid
+        return self._per_island(move.amax(dim=1), reduce="amax")
+
+    def motion_scale(self) -> torch.Tensor:
+        """|q_pred - q_n|_M + h^2 |g| sqrt(m) + 1e-9 sqrt(m) per island (the convergence yardstick)."""
+        motion = self._per_island(self._object_mass_norm2(self.tm_pred - self.tm_n)).clamp(min=0.0).sqrt()
+        root_mass = self.island_mass_kg.sqrt()
+        return motion + self.h2 * float(self.gravity.norm()) * root_mass + 1e-9 * root_mass
+
+    def trust_radius(self) -> torch.Tensor:
+        """Largest sphere displacement of one Newton update, m: twice the step's predicted motion, plus
+        what gravity adds, plus the island's smallest median contact radius. An affine handle linearises
+        rotations, so a thin stiff object can otherwise be offered updates of metres."""
+        predicted = self._point_motion_objects(self.tm_pred - self.tm_n)
+        return 2.0 * predicted + self.h2 * float(self.gravity.norm()) + self.min_median_radius_m
+
+    # -- evaluation
+    def evaluate(self, q: torch.Tensor, derivatives: bool, strict_islands: torch.Tensor | None = None) -> Evaluation:
+        m = self.model
+        tm = self.layout.to_objects(q)
+        x = m.sphere_positions(tm)
+        strict = None if strict_islands is None else strict_islands[self.layout.island]
+        it = inertia(m.mass_matrix, tm - self.tm_pred, derivatives)
+        el = self._elastic(tm, derivatives, strict)
+        gr = gravity(m.mass_b_sum, self.gravity, tm, derivatives)
+        sc = scene_contact(
+            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.scene_stiffness_n_m, m.friction,
+            self.start, self.smoothing_m, derivatives,
+        )  # fmt: skip
+        pc = pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, derivatives) if self.pairs.num_pairs else None
+        potential = el.energy + gr.energy + sc.terms.energy + (pc.energy if pc is not None else 0.0)
+        value = self._per_island(it.energy + self.h2 * potential)
+        if not derivatives:
+            return Evaluation(value)
+        grad = it.grad + self.h2 * (el.grad + gr.grad + sc.terms.grad)
+        hess = it.hess + self.h2 * (el.hess + sc.terms.hess)
+        if pc is not None:
+            grad = grad + self.h2 * pc.grad
+            hess = hess + self.h2 * pc.hess
+        matrix = self.layout.assemble(hess)
+        if pc is not None and pc.cross.shape[0]:
+            matrix = self.layout.assemble(self.h2 * pc.cross, pc.cross_rows, pc.cross_cols, out=matrix)
+        matrix.diagonal(dim1=1, dim2=2).add_(self.padding.to(DTYPE))
+        return Evaluation(value, self.layout.to_islands(grad), matrix)
+
+    def _elastic(self, tm: torch.Tensor, derivatives: bool, strict: torch.Tensor | None) -> ObjectTerms:
+        """Elastic terms of all objects, evaluated per group of equal cubature width."""
+        m = self.model
+        n, k = tm.shape[0], m.columns
+        out = ObjectTerms(
+            torch.zeros(n, dtype=DTYPE),
+            torch.zeros(n, 3, k, dtype=DTYPE) if derivatives else None,
+            torch.zeros(n, 3 * k, 3 * k, dtype=DTYPE) if derivatives else None,
+        )
+        for idx, cub_c, volume in self.elastic_groups:  # at most two groups: rigid and deformable
+            part = elastic(
+                cub_c, volume, m.mu_pa[idx], m.lam_pa[idx], m.spd_tolerance_pa[idx], tm[idx], derivatives,
+                None if strict is None else strict[idx],
+            )  # fmt: skip
+            out.energy[idx] = part.energy
+            if derivatives:
+                out.grad[idx] = part.grad
+                out.hess[idx] = part.hess
+        return out
+
+    def forces(self, tm: torch.Tensor) -> ContactForces:
+        """Contact and friction forces of the state ``tm`` (n, 3, K) (the solver's final state)."""
+        m = self.model
+        x = m.sphere_positions(tm)
+        sc = scene_contact(
+            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.scene_stiffness_n_m, m.friction,
+            self.start, self.smoothing_m, False,
+        )  # fmt: skip
+        if self.pairs.num_pairs:
+            pc = pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, False)
+            xi, xj = self.pairs.positions(x)
+            delta = xi - xj
+            normals = delta / delta.norm(dim=1, keepdim=True).clamp(min=1e-12)
+            pair_force = pc.force_i_n
+        else:
+            pair_force = normals = torch.zeros(0, 3, dtype=DTYPE)
+        return ContactForces(sc.force_n, sc.normals, x, pair_force, normals)
+
+
+__all__ = ["ContactForces", "StepObjective"]
