@@ -4,7 +4,8 @@ Each island ``i`` minimises its own objective ``f_i(q_i)``; the islands share on
 (:class:`Objective`) but every decision is per island: the Newton direction (batched Cholesky of the
 (islands, N, N) matrices, a relative ridge where needed, and an all-blocks-projected re-evaluation for an
 island whose matrix is still indefinite), the trust radius on contact-sphere motion, the Armijo search
-(then plain decrease for ``extra_halvings`` more halvings), and convergence (``alpha |dq|_M <= tol scale_i``).
+(then plain decrease for ``extra_halvings`` more halvings), and convergence (``alpha |dq|_M <= tol scale_i``;
+an update that is already that small is taken whole without a search).
 A converged or stalled island stops moving while the others go on.
 """
 
@@ -134,7 +135,9 @@ def minimise(
         motion = objective.point_motion(dq)
         alpha = torch.clamp(trust_m / motion.clamp(min=1e-300), max=1.0)
         counters["trust_limited_steps"] += int((active & (alpha < 1.0)).sum())
-        accepted = ~active  # islands that are done need no search
+        # an update already below the tolerance is taken whole, without a search: the island has converged
+        small = active & (alpha >= 1.0) & (objective.mass_norm(dq) <= settings.tolerance * scale)
+        accepted = ~active | small  # islands that are done, or converging now, need no search
         for trial_index in range(settings.line_search_steps + EXTRA_HALVINGS):
             trial = objective.evaluate(q + alpha[:, None] * dq * (~accepted)[:, None], False).value
             counters["evaluations"] += 1
@@ -154,7 +157,7 @@ def minimise(
         moving = active & accepted
         q = q + (alpha * moving)[:, None] * dq
         step_norm = alpha * objective.mass_norm(dq)
-        done = moving & (step_norm <= settings.tolerance * scale)
+        done = moving & ((step_norm <= settings.tolerance * scale) | small)
         converged |= done
         active = active & ~done & ~failed_ls
         if not bool(active.any()):
