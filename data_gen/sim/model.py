@@ -18,7 +18,7 @@ method solves for, one vector per island.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import torch
@@ -152,6 +152,7 @@ class DofLayout:
     flat_index: torch.Tensor
     num_islands: int
     island_size: int
+    _diagonal: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False, compare=False)
 
     @staticmethod
     def build(num_handles: torch.Tensor, island: torch.Tensor, columns: int) -> DofLayout:
@@ -187,18 +188,9 @@ class DofLayout:
         out = torch.where(self.valid, f[self.flat_index.clamp(min=0)], torch.zeros((), dtype=flat.dtype))
         return out.reshape(self.flat_index.shape[0], 3, -1)
 
-    def assemble(self, blocks: torch.Tensor, rows: torch.Tensor | None = None, cols: torch.Tensor | None = None,
-                 out: torch.Tensor | None = None) -> torch.Tensor:
-        """Add object blocks (m, 3K, 3K) at (rows[m], cols[m]) (default: the diagonal) into island matrices
-        (num_islands, N, N); padded rows/columns are dropped. Cross blocks must pair objects of one island."""
-        n_isl, size = self.num_islands, self.island_size
-        if out is None:
-            out = torch.zeros(n_isl * size * size, dtype=blocks.dtype)
-        else:
-            out = out.reshape(-1)
-        objects = torch.arange(self.flat_index.shape[0])
-        rows = objects if rows is None else rows
-        cols = rows if cols is None else cols
+    def _block_index(self, rows: torch.Tensor, cols: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Flat positions in the (num_islands, N, N) matrices of blocks (rows[m], cols[m]) and their mask."""
+        size = self.island_size
         fr = self.flat_index[rows]  # (m, 3K) flat = island * N + local
         fc = self.flat_index[cols]
         island = (fr.clamp(min=0) // max(size, 1))[:, :1]
@@ -206,5 +198,20 @@ class DofLayout:
         local_c = fc - island * size
         mask = (fr >= 0)[:, :, None] & (fc >= 0)[:, None, :]
         index = (island[:, :, None] * size + local_r[:, :, None]) * size + local_c[:, None, :]
-        out.index_add_(0, index[mask], blocks[mask])
+        return index[mask], mask
+
+    def assemble(self, blocks: torch.Tensor, rows: torch.Tensor | None = None, cols: torch.Tensor | None = None,
+                 out: torch.Tensor | None = None) -> torch.Tensor:
+        """Add object blocks (m, 3K, 3K) at (rows[m], cols[m]) (default: the diagonal) into island matrices
+        (num_islands, N, N); padded rows/columns are dropped. Cross blocks must pair objects of one island."""
+        n_isl, size = self.num_islands, self.island_size
+        out = torch.zeros(n_isl * size * size, dtype=blocks.dtype) if out is None else out.reshape(-1)
+        if rows is None:  # the diagonal blocks: the same positions on every call
+            if self._diagonal is None:
+                objects = torch.arange(self.flat_index.shape[0])
+                object.__setattr__(self, "_diagonal", self._block_index(objects, objects))
+            index, mask = self._diagonal
+        else:
+            index, mask = self._block_index(rows, rows if cols is None else cols)
+        out.index_add_(0, index, blocks[mask])
         return out.reshape(n_isl, size, size)

@@ -64,6 +64,8 @@ class StepObjective(Objective):
         self.tm_pred = tm_n + h_s * tmdot
         self.smoothing_m = smoothing_m
         self.scene_stiffness_n_m = stiffness_factor * model.mass_kg / self.h2
+        self.sphere_stiffness_n_m = self.scene_stiffness_n_m[:, None] * model.sphere_valid
+        self.sphere_friction = model.friction[:, None].expand_as(self.sphere_stiffness_n_m).contiguous()
         self.start = contact_start(
             scene, model.sphere_positions(tm_n), model.sphere_radius_m, model.sphere_valid, self.scene_stiffness_n_m
         )
@@ -127,8 +129,8 @@ class StepObjective(Objective):
         el = self._elastic(tm, derivatives, strict)
         gr = gravity(m.mass_b_sum, self.gravity, tm, derivatives)
         sc = scene_contact(
-            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.scene_stiffness_n_m, m.friction,
-            self.start, self.smoothing_m, derivatives,
+            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.sphere_stiffness_n_m,
+            self.sphere_friction, self.start, self.smoothing_m, derivatives,
         )  # fmt: skip
         pc = pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, derivatives) if self.pairs.num_pairs else None
         potential = el.energy + gr.energy + sc.terms.energy + (pc.energy if pc is not None else 0.0)
@@ -171,8 +173,8 @@ class StepObjective(Objective):
         m = self.model
         x = m.sphere_positions(tm)
         sc = scene_contact(
-            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.scene_stiffness_n_m, m.friction,
-            self.start, self.smoothing_m, False,
+            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.sphere_stiffness_n_m,
+            self.sphere_friction, self.start, self.smoothing_m, False,
         )  # fmt: skip
         if self.pairs.num_pairs:
             pc = pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, False)

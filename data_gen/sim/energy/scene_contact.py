@@ -64,16 +64,19 @@ def scene_contact(
     smoothing_m: float,
     derivatives: bool,
 ) -> SceneContactResult:
-    """Contact and friction terms of spheres at ``x_m`` (n, S, 3) moved by bases ``b`` (n, S, K)."""
+    """Contact and friction terms of spheres at ``x_m`` (n, S, 3) moved by bases ``b`` (n, S, K).
+
+    ``stiffness_n_m`` is per object (n,) (masked here by ``valid``) or per sphere (n, S) (already masked);
+    ``friction`` per object (n,) or per sphere (n, S)."""
     n, s, _ = x_m.shape
     sdf, normal = query(scene, x_m)
-    k = (stiffness_n_m[:, None] * valid).reshape(-1)
+    k = (stiffness_n_m[:, None] * valid).reshape(-1) if stiffness_n_m.ndim == 1 else stiffness_n_m.reshape(-1)
     e_c, g_c, h_c = point_terms.penalty((radius_m - sdf).reshape(-1), normal.reshape(-1, 3), k, derivatives)
     e_f, g_f, h_f = point_terms.friction(
         (x_m - start.positions_m).reshape(-1, 3),
         start.normal_force_n.reshape(-1),
         start.normals.reshape(-1, 3),
-        friction[:, None].expand(n, s).reshape(-1),
+        friction[:, None].expand(n, s).reshape(-1) if friction.ndim == 1 else friction.reshape(-1),
         smoothing_m,
         derivatives,
     )
