@@ -172,9 +172,11 @@ def tiny_model_dir(arch: str, seed: int = 0, cache_dir: Path | str | None = None
     return out
 
 
-def build_tiny_answerer(arch: str, seed: int = 0, cache_dir: str | None = None, device: str | None = "cpu",
+def build_tiny_answerer(name: str, seed: int = 0, cache_dir: str | None = None, device: str | None = "cpu",
                         max_new_tokens: int | None = None) -> HFAnswerer:  # fmt: skip
-    """The tiny random-weight ``arch`` (one of :data:`TINY_ARCHS`) behind the generic adapter."""
+    """The tiny random-weight architecture ``name`` (``qwen2_vl`` or ``tiny_qwen2_vl``, ... of
+    :data:`TINY_ARCHS`) behind the generic adapter."""
+    arch = str(name).removeprefix("tiny_")
     source = tiny_model_dir(arch, seed, cache_dir)
     spec = TINY_SPECS[arch]
     answerer = load_hf_answerer(spec, source, weights="random", revision=f"tiny-v{TINY_VERSION}", device=device,
