@@ -17,6 +17,7 @@ template (a task prefix, the processor adds the image tokens).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
@@ -246,9 +247,13 @@ def load_hf_answerer(spec: VLMSpec, source: str | Path, *, weights: str, revisio
 
 def build_hf_answerer(name: str, revision: str | None = None, dtype: str | None = None, device: str | None = "auto",
                       device_map: str | None = None, max_new_tokens: int | None = None,
-                      weights_path: str | None = None, allow_download: bool | None = True) -> HFAnswerer:  # fmt: skip
-    """The pretrained VLM ``name`` of :mod:`probes.vlm.specs` (``null`` arguments mean the record's value)."""
+                      weights_path: str | None = None, allow_download: bool | None = True,
+                      processor_kwargs: dict[str, Any] | None = None) -> HFAnswerer:  # fmt: skip
+    """The pretrained VLM ``name`` of :mod:`probes.vlm.specs` (``null`` arguments mean the record's value;
+    ``processor_kwargs`` replace the record's, e.g. Qwen2-VL's ``{min_pixels: ..., max_pixels: ...}``)."""
     spec = get_spec(str(name))
+    if processor_kwargs is not None:
+        spec = dataclasses.replace(spec, processor_kwargs=dict(processor_kwargs))
     _refuse_remote_code(spec)  # before any download
     source, resolved = resolve_snapshot(spec, revision, weights_path, True if allow_download is None else bool(allow_download))
     return load_hf_answerer(spec, source, weights="pretrained", revision=resolved, device=device, dtype=dtype,

@@ -92,14 +92,9 @@ class VLMSpec:
 
 
 IT2T = "AutoModelForImageTextToText"
-# Qwen2-VL / Qwen2.5-VL: at most 1280 visual tokens of 28 x 28 px per image (their model cards' suggested
-# budget); NewtPhys frames (<= 512 px) stay under it, so frames are not downscaled in practice.
-_QWEN_PIXELS = {"min_pixels": 256 * 28 * 28, "max_pixels": 1280 * 28 * 28}
-
-
 def _qwen(name: str, hf_id: str, family: str, params_b: float, description: str) -> VLMSpec:
-    return VLMSpec(name, hf_id, family, IT2T, params_b, video=True, processor_kwargs=dict(_QWEN_PIXELS),
-                   description=description)  # fmt: skip
+    # the processor's own pixel budget (the repo's preprocessor config); vlm.processor_kwargs overrides it
+    return VLMSpec(name, hf_id, family, IT2T, params_b, video=True, description=description)
 
 
 def _specs() -> dict[str, VLMSpec]:
