@@ -3,6 +3,8 @@
     python evaluate_vlm.py vlm=qwen2_5_vl_7b vqa_dir=data/vqa/test
     python evaluate_vlm.py -m vlm=random,oracle,constant_letter,prior,qwen2_5_vl_3b vqa_dir=data/vqa/test
     python evaluate_vlm.py vlm=qwen2_5_vl_7b blind=true circular=true
+    python evaluate_vlm.py -m hydra/launcher=slurm vlm=qwen2_5_vl_72b shard.count=4 shard.index=0,1,2,3
+    python -m probes.vlm.merge results/vlm/vqa-test/qwen2_5_vl_72b     # join the shards, then score
 
 Order: resolve the set directory -> build the answerer from ``cfg.vlm`` (``_target_``; a ``set_dir: null`` key is
 filled with the set) -> wrap it in :class:`~probes.vlm.baselines.Blind` when ``blind=true`` -> answer into the
@@ -15,6 +17,7 @@ import importlib
 import importlib.util
 import json
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +28,7 @@ from newtphys.config import CONFIG_DIR
 from probes.vlm.baselines import Blind
 from probes.vlm.evaluate import EvalResult, evaluate
 from probes.vlm.interface import SCORES_FILE, Answerer
+from probes.vlm.merge import shard_dir
 from probes.vlm.predictions import _write_atomic
 from probes.vlm.prompting import resolve_set_dir
 from probes.vlm.simple_scores import simple_scores
@@ -89,19 +93,38 @@ def log_wandb(cfg: DictConfig, name: str, result: EvalResult, scores: dict[str, 
     run.finish()
 
 
+def shard_of(cfg: DictConfig) -> tuple[int, int]:
+    """(index, count) of ``cfg.shard``; pins this job to ``shard.gpus[index % len]`` when GPUs are listed
+    (before CUDA starts)."""
+    sh = cfg.get("shard") or {}
+    index, count = int(sh.get("index", 0)), int(sh.get("count", 1))
+    if count < 1 or not 0 <= index < count:
+        raise ValueError(f"shard.index={index} shard.count={count}: need 0 <= index < count")
+    gpus = sh.get("gpus")
+    if gpus:
+        os.environ["CUDA_VISIBLE_DEVICES"] = str(list(gpus)[index % len(gpus)])
+    return index, count
+
+
 def run(cfg: DictConfig) -> dict[str, Any]:
     """One evaluation from a composed ``evaluate_vlm`` config (tests call this); returns run_dir, result and
-    scores."""
+    scores (none for one shard of a sharded run: merge the shards, :mod:`probes.vlm.merge`)."""
     set_dir = resolve_set_dir(cfg.vqa_dir, cfg.get("split"))
+    index, count = shard_of(cfg)
     answerer = build_answerer(cfg.vlm, set_dir)
     if cfg.get("blind", False):
         answerer = Blind(answerer)
     circular = bool(cfg.get("circular", False))
     name = run_name(answerer, circular)
-    run_dir = Path(cfg.run_dir) if cfg.get("run_dir") else Path(cfg.results_dir) / f"{set_dir.parent.name}-{set_dir.name}" / name
+    base_dir = Path(cfg.run_dir) if cfg.get("run_dir") else Path(cfg.results_dir) / f"{set_dir.parent.name}-{set_dir.name}" / name
+    run_dir = base_dir if count == 1 else shard_dir(base_dir, index, count)
     result = evaluate(answerer, set_dir, run_dir, batch_size=int(cfg.batch_size), circular=circular,
-                      limit=cfg.get("limit"), progress=bool(cfg.get("progress", True)),
+                      limit=cfg.get("limit"), progress=bool(cfg.get("progress", True)), shard=(index, count),
                       extra={"limit": cfg.get("limit"), "batch_size": int(cfg.batch_size)})  # fmt: skip
+    if count > 1:
+        log.info("shard %d of %d done -> %s; merge with: python -m probes.vlm.merge %s", index, count, run_dir,
+                 base_dir)  # fmt: skip
+        return {"run_dir": run_dir, "result": result, "scores": {}}
     log.info("%s: %d answered now, %d from earlier runs, %.1f s -> %s", name, result.answered, result.already_done,
              result.seconds, run_dir)  # fmt: skip
     scores = score(run_dir, set_dir) if cfg.get("score", True) else {}

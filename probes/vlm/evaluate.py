@@ -82,11 +82,17 @@ def to_record(prompt_options: tuple[str, ...], idx: str, rotation: int, gen: Any
 
 def evaluate(answerer: Answerer, set_dir: Path | str, run_dir: Path | str, *, batch_size: int = 8,
              circular: bool = False, limit: int | None = None, progress: bool = True,
-             extra: dict[str, Any] | None = None) -> EvalResult:  # fmt: skip
+             extra: dict[str, Any] | None = None, shard: tuple[int, int] = (0, 1)) -> EvalResult:  # fmt: skip
     """Answer the set at ``set_dir`` with ``answerer`` into ``run_dir`` (resuming what is there).
 
     ``limit``: answer only the first ``limit`` selectable items (smoke runs; recorded in the manifest).
+    ``shard``: (index, count): answer only the batches whose position modulo ``count`` is ``index`` (one job
+    of a sharded run; :mod:`probes.vlm.merge` joins the shards' run directories, batch for batch the same
+    as one unsharded run).
     """
+    index, count = int(shard[0]), int(shard[1])
+    if count < 1 or not 0 <= index < count:
+        raise ValueError(f"shard must be (index, count) with 0 <= index < count, got {tuple(shard)}")
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     if limit is not None and limit < 1:
@@ -96,12 +102,13 @@ def evaluate(answerer: Answerer, set_dir: Path | str, run_dir: Path | str, *, ba
     items, skipped = selectable(vs.read_items(set_dir), answerer)
     if limit is not None:
         items = items[:limit]
-    manifest = make_manifest(answerer, set_dir, circular, {**(extra or {}), "skipped_items": skipped})
+    manifest = make_manifest(answerer, set_dir, circular, {**(extra or {}), "skipped_items": skipped,
+                                                           "shard": [index, count]})  # fmt: skip
     store = PredictionStore(run_dir)
     before = store.open(manifest)
     rotations = ROTATIONS if circular else (0,)
     work = [(item, r) for item in items for r in rotations]
-    chunks = [work[i:i + batch_size] for i in range(0, len(work), batch_size)]
+    chunks = [work[i:i + batch_size] for i in range(0, len(work), batch_size)][index::count]
     pending_chunks = [[(it, r) for it, r in c if (it.idx, r) not in store.done] for c in chunks]
     pending_chunks = [c for c in pending_chunks if c]
     log.info("%s on %s: %d items x %d rotation(s); %d predictions done, %d batches to go", answerer.name, set_dir,
