@@ -29,7 +29,7 @@ from probes.vlm.baselines import Blind
 from probes.vlm.evaluate import EvalResult, evaluate
 from probes.vlm.interface import SCORES_FILE, Answerer
 from probes.vlm.merge import shard_dir
-from probes.vlm.predictions import _write_atomic
+from probes.vlm.predictions import write_atomic
 from probes.vlm.prompting import resolve_set_dir
 from probes.vlm.simple_scores import simple_scores
 
@@ -38,7 +38,8 @@ log = logging.getLogger(__name__)
 
 def build_answerer(vlm_cfg: DictConfig | dict[str, Any], set_dir: Path) -> Answerer:
     """Instantiate ``vlm_cfg`` (its ``_target_``); a ``set_dir`` key left null gets the evaluated set."""
-    node = OmegaConf.create(OmegaConf.to_container(vlm_cfg, resolve=True) if isinstance(vlm_cfg, DictConfig) else vlm_cfg)
+    plain = OmegaConf.to_container(vlm_cfg, resolve=True) if isinstance(vlm_cfg, DictConfig) else vlm_cfg
+    node = OmegaConf.create(plain)
     if "_target_" not in node:
         raise ValueError(f"vlm config needs a _target_ (see newtphys/conf/vlm/); got keys {sorted(node)}")
     if "set_dir" in node and node.set_dir is None:
@@ -58,7 +59,7 @@ def score(run_dir: Path, set_dir: Path) -> dict[str, Any]:
         scores = scoring.score_run(run_dir, set_dir)
     else:
         scores = simple_scores(run_dir, set_dir)
-    _write_atomic(run_dir / SCORES_FILE, json.dumps(scores, indent=2, sort_keys=True, default=str) + "\n")
+    write_atomic(run_dir / SCORES_FILE, json.dumps(scores, indent=2, sort_keys=True, default=str) + "\n")
     return scores
 
 
@@ -116,7 +117,8 @@ def run(cfg: DictConfig) -> dict[str, Any]:
         answerer = Blind(answerer)
     circular = bool(cfg.get("circular", False))
     name = run_name(answerer, circular)
-    base_dir = Path(cfg.run_dir) if cfg.get("run_dir") else Path(cfg.results_dir) / f"{set_dir.parent.name}-{set_dir.name}" / name
+    default_dir = Path(cfg.results_dir) / f"{set_dir.parent.name}-{set_dir.name}" / name
+    base_dir = Path(cfg.run_dir) if cfg.get("run_dir") else default_dir
     run_dir = base_dir if count == 1 else shard_dir(base_dir, index, count)
     result = evaluate(answerer, set_dir, run_dir, batch_size=int(cfg.batch_size), circular=circular,
                       limit=cfg.get("limit"), progress=bool(cfg.get("progress", True)), shard=(index, count),

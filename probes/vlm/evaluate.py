@@ -63,8 +63,11 @@ def selectable(items: list[vs.QuestionItem], answerer: Answerer) -> tuple[list[v
     return keep, skipped
 
 
-def make_manifest(answerer: Answerer, set_dir: Path, circular: bool, extra: dict[str, Any] | None = None) -> RunManifest:
-    split = vs.read_manifest(set_dir).get("split", set_dir.name) if (set_dir / vs.MANIFEST_FILE).is_file() else set_dir.name
+def make_manifest(answerer: Answerer, set_dir: Path, circular: bool,
+                  extra: dict[str, Any] | None = None) -> RunManifest:  # fmt: skip
+    split = set_dir.name
+    if (set_dir / vs.MANIFEST_FILE).is_file():
+        split = vs.read_manifest(set_dir).get("split", split)
     return RunManifest(answerer=answerer.name, model=answerer.describe(), vqa_dir=str(set_dir.resolve()),
                        split=str(split), question_set_sha256=question_set_sha256(set_dir),
                        prompt_template_sha256=prompt_template_sha256(), circular=bool(circular),

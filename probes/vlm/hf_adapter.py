@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 SNAPSHOT_PATTERNS: tuple[str, ...] = ("*.json", "*.safetensors", "*.jinja", "*.model", "*.txt", "*.tiktoken")
 """Files of a repo a load needs (no duplicate ``.bin`` / ``.pth`` weights, no remote code)."""
+DTYPES: dict[str, torch.dtype] = {"bfloat16": torch.bfloat16, "float16": torch.float16, "float32": torch.float32}
 LARGE_MODEL_PARAMS_B = 20.0
 """Models from this size (billions of parameters) load with ``device_map="auto"`` on GPU."""
 
@@ -79,7 +80,8 @@ def resolve_snapshot(spec: VLMSpec, revision: str | None, weights_path: str | os
                                           allow_patterns=list(SNAPSHOT_PATTERNS)))  # fmt: skip
         except Exception as e:  # network, auth, missing repo: say what failed and how to provide the weights
             raise WeightsUnavailableError(
-                f"downloading {spec.hf_id!r} failed: {type(e).__name__}: {e}. " + missing_vlm_message(spec, "a snapshot")
+                f"downloading {spec.hf_id!r} failed: {type(e).__name__}: {e}. "
+                + missing_vlm_message(spec, "a snapshot")
             ) from e
         return snap, snap.name
     raise WeightsUnavailableError(missing_vlm_message(spec, "a snapshot with config.json"))
@@ -94,11 +96,10 @@ def pick_device(device: str | None) -> str:
 
 def pick_dtype(spec: VLMSpec, device: str, dtype: str | None) -> torch.dtype:
     """The record's dtype on GPU, float32 on CPU (bf16 matmuls are slow there), unless ``dtype`` is given."""
-    name = dtype or (spec.dtype if device.startswith("cuda") else "float32")
-    value = getattr(torch, str(name), None)
-    if not isinstance(value, torch.dtype):
-        raise ValueError(f"dtype {name!r} for VLM {spec.name!r} is not a torch dtype (e.g. bfloat16, float16, float32)")
-    return value
+    name = str(dtype or (spec.dtype if device.startswith("cuda") else "float32"))
+    if name not in DTYPES:
+        raise ValueError(f"dtype {name!r} for VLM {spec.name!r} is not one of {list(DTYPES)}")
+    return DTYPES[name]
 
 
 def _load_image(path: Path):
@@ -151,7 +152,8 @@ class HFAnswerer:
         import transformers
 
         return {"id": self.spec.hf_id, "revision": self.revision, "family": self.spec.family,
-                "loader": self.spec.loader, "params_b": self.spec.params_b, "dtype": str(self.model.dtype).removeprefix("torch."),
+                "loader": self.spec.loader, "params_b": self.spec.params_b,
+                "dtype": str(self.model.dtype).removeprefix("torch."),
                 "weights": self.weights, "max_new_tokens": self.max_new_tokens, "decoding": "greedy",
                 "single_image_only": self.spec.single_image_only, "max_images": self.spec.max_images,
                 "chat_template": self.spec.chat_template, "prompt_prefix": self.spec.prompt_prefix,
@@ -189,7 +191,8 @@ class HFAnswerer:
         batch = {k: (v.to(target) if hasattr(v, "to") else v) for k, v in batch.items()}
         if "pixel_values" in batch and torch.is_floating_point(batch["pixel_values"]):
             batch["pixel_values"] = batch["pixel_values"].to(self.model.dtype)
-        out = self.model.generate(**batch, max_new_tokens=self.max_new_tokens, do_sample=False)
+        out = self.model.generate(**batch, max_new_tokens=self.max_new_tokens, do_sample=False,
+                                  pad_token_id=self.tokenizer.pad_token_id)
         new = out[:, batch["input_ids"].shape[1]:].cpu()
         texts = self.tokenizer.batch_decode(new, skip_special_tokens=True)
         latency = (time.perf_counter() - start) / len(prompts)
@@ -255,6 +258,7 @@ def build_hf_answerer(name: str, revision: str | None = None, dtype: str | None 
     if processor_kwargs is not None:
         spec = dataclasses.replace(spec, processor_kwargs=dict(processor_kwargs))
     _refuse_remote_code(spec)  # before any download
-    source, resolved = resolve_snapshot(spec, revision, weights_path, True if allow_download is None else bool(allow_download))
+    download = True if allow_download is None else bool(allow_download)
+    source, resolved = resolve_snapshot(spec, revision, weights_path, download)
     return load_hf_answerer(spec, source, weights="pretrained", revision=resolved, device=device, dtype=dtype,
                             device_map=device_map, max_new_tokens=max_new_tokens)  # fmt: skip

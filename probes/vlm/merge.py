@@ -21,7 +21,7 @@ from typing import Any
 
 from newtphys import vqa_schema as vs
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, PredictionRecord
-from probes.vlm.predictions import MixedRunError, _write_atomic, manifest_differences, read_predictions
+from probes.vlm.predictions import MixedRunError, manifest_differences, read_predictions, write_atomic
 
 SHARDS_DIR = "shards"
 _SHARD_NAME = re.compile(r"^(\d+)-of-(\d+)$")
@@ -80,8 +80,8 @@ def merge_shards(run_dir: Path | str, allow_incomplete: bool = False) -> dict[st
         raise RuntimeError(f"{run_dir}: {len(absent)} (item, rotation) pairs have no prediction yet, e.g. "
                            f"{absent[:3]}; wait for the shards (or re-run them), or pass --allow-incomplete")  # fmt: skip
     lines = [json.dumps(asdict(records[k])) for k in sorted(records, key=lambda k: (order[k[0]], k[1]))]
-    _write_atomic(run_dir / MANIFEST_FILE, json.dumps(merged, indent=2, sort_keys=True) + "\n")
-    _write_atomic(run_dir / PREDICTIONS_FILE, "".join(line + "\n" for line in lines))
+    write_atomic(run_dir / MANIFEST_FILE, json.dumps(merged, indent=2, sort_keys=True) + "\n")
+    write_atomic(run_dir / PREDICTIONS_FILE, "".join(line + "\n" for line in lines))
     return {"shards": count, "predictions": len(lines), "missing": len(absent), "set_dir": str(set_dir)}
 
 
@@ -105,7 +105,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-score", action="store_true", help="do not write scores.json")
     args = ap.parse_args(argv)
     out = merge_shards(args.run_dir, args.allow_incomplete)
-    print(f"merged {out['shards']} shards: {out['predictions']} predictions ({out['missing']} missing) -> {args.run_dir}")
+    print(f"merged {out['shards']} shards: {out['predictions']} predictions ({out['missing']} missing) "
+          f"-> {args.run_dir}")
     if not args.no_score and not out["missing"]:
         from probes.vlm.cli import score
 

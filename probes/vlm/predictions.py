@@ -52,7 +52,7 @@ def manifest_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     return out
 
 
-def _write_atomic(path: Path, text: str) -> None:
+def write_atomic(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w") as f:
         f.write(text)
@@ -144,7 +144,7 @@ class PredictionStore:
             raise MixedRunError(f"{self.path}: predictions without a {MANIFEST_FILE}: cannot tell which model, set "
                                 "and prompt made them; move them away or delete them")  # fmt: skip
         else:
-            _write_atomic(self.manifest_path, manifest.to_json() + "\n")
+            write_atomic(self.manifest_path, manifest.to_json() + "\n")
         dropped = cut_torn_tail(self.path)
         if dropped:
             log.warning("%s: cut a torn last line of %d bytes (a run was killed while writing)", self.path, dropped)

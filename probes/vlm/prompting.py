@@ -50,7 +50,8 @@ def build_prompt(item: vs.QuestionItem, set_dir: Path | str, rotation: int = 0) 
     set_dir = Path(set_dir).resolve()
     options = rotate(option_texts(item), rotation)
     return Prompt(idx=item.idx, images=tuple(set_dir / p for p in item.images),
-                  text=vqa_scoring.format_prompt(item.question, options), options=options, rotation=rotation)  # fmt: skip
+                  text=vqa_scoring.format_prompt(item.question, options), options=options,
+                  rotation=rotation)  # fmt: skip
 
 
 def prompt_template_sha256() -> str:

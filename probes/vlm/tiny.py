@@ -64,8 +64,13 @@ def byte_tokenizer(special_tokens: list[str], *, bos: str | None, eos: str, pad:
 
 
 def _qwen2_vl(out: Path, seed: int) -> None:
-    from transformers import (Qwen2VLConfig, Qwen2VLForConditionalGeneration, Qwen2VLImageProcessor,
-                              Qwen2VLProcessor, Qwen2VLVideoProcessor)  # fmt: skip
+    from transformers import (
+        Qwen2VLConfig,
+        Qwen2VLForConditionalGeneration,
+        Qwen2VLImageProcessor,
+        Qwen2VLProcessor,  # fmt: skip
+        Qwen2VLVideoProcessor,
+    )
 
     specials = ["<|endoftext|>", "<|im_start|>", "<|im_end|>", "<|vision_start|>", "<|vision_end|>",
                 "<|image_pad|>", "<|video_pad|>"]  # fmt: skip
@@ -78,7 +83,8 @@ def _qwen2_vl(out: Path, seed: int) -> None:
         video_processor=Qwen2VLVideoProcessor(**pixels), tokenizer=tok, chat_template=QWEN_TEMPLATE,
     )
     config = Qwen2VLConfig(
-        text_config={**TEXT_LAYERS, "vocab_size": len(tok), "rope_scaling": {"type": "mrope", "mrope_section": [2, 1, 1]},
+        text_config={**TEXT_LAYERS, "vocab_size": len(tok),
+                     "rope_scaling": {"type": "mrope", "mrope_section": [2, 1, 1]},
                      "bos_token_id": ids["<|im_start|>"], "eos_token_id": ids["<|im_end|>"],
                      "pad_token_id": ids["<|endoftext|>"]},
         vision_config={"depth": 2, "embed_dim": 32, "hidden_size": 32, "num_heads": 4, "mlp_ratio": 2,
@@ -86,11 +92,17 @@ def _qwen2_vl(out: Path, seed: int) -> None:
         image_token_id=ids["<|image_pad|>"], video_token_id=ids["<|video_pad|>"],
         vision_start_token_id=ids["<|vision_start|>"], vision_end_token_id=ids["<|vision_end|>"],
     )  # fmt: skip
-    _save(Qwen2VLForConditionalGeneration, config, processor, out, seed, eos=ids["<|im_end|>"], pad=ids["<|endoftext|>"])
+    _save(Qwen2VLForConditionalGeneration, config, processor, out, seed, eos=ids["<|im_end|>"],
+          pad=ids["<|endoftext|>"])
 
 
 def _idefics3(out: Path, seed: int) -> None:
-    from transformers import Idefics3Config, Idefics3ForConditionalGeneration, Idefics3ImageProcessor, Idefics3Processor
+    from transformers import (
+        Idefics3Config,
+        Idefics3ForConditionalGeneration,
+        Idefics3ImageProcessor,
+        Idefics3Processor,
+    )
 
     specials = ["<|endoftext|>", "<|im_start|>", "<end_of_utterance>", "<fake_token_around_image>", "<image>",
                 "<global-img>"] + [f"<row_{i + 1}_col_{j + 1}>" for i in range(6) for j in range(6)]  # fmt: skip

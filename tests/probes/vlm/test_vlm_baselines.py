@@ -40,6 +40,7 @@ def test_oracle_scores_exactly_one(vlm_set: Path, tmp_path: Path, circular: bool
 def test_random_is_within_its_own_95_interval_of_chance_on_400_items(tmp_path: Path):
     set_dir = write_synthetic_records(tmp_path / "set", 400, seed=1)
     preds, scores = _run(RandomAnswerer(seed=0), set_dir, tmp_path / "random", batch_size=64)
+    assert scores["items"] == 400 and scores["extracted_share"] == 1.0
     answers = vs.read_answers(set_dir)
     right = sum(p.letter == answers[p.idx].answer for p in preds)
     lo, hi = wilson_interval(right, len(preds))
