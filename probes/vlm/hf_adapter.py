@@ -188,7 +188,7 @@ class HFAnswerer:
         start = time.perf_counter()
         batch = self.inputs(prompts)
         target = self.model.device
-        batch = {k: (v.to(target) if hasattr(v, "to") else v) for k, v in batch.items()}
+        batch = {k: (v.to(target) if hasattr(v, "to") else v) for k, v in batch.items() if k != "labels"}
         if "pixel_values" in batch and torch.is_floating_point(batch["pixel_values"]):
             batch["pixel_values"] = batch["pixel_values"].to(self.model.dtype)
         out = self.model.generate(**batch, max_new_tokens=self.max_new_tokens, do_sample=False,

@@ -1,7 +1,7 @@
 """TEST / BENCH FIXTURES: tiny random-weight instances of real VLM architectures, built here, offline.
 
 Each is the real transformers model class (``Qwen2VLForConditionalGeneration``,
-``Idefics3ForConditionalGeneration``) built from its config class at a tiny size, with the real processor and
+``Idefics3ForConditionalGeneration``, ``PaliGemmaForConditionalGeneration``: single-image, no chat template) built from its config class at a tiny size, with the real processor and
 image-processor classes and a byte-level tokenizer made locally with the ``tokenizers`` library (256 byte
 tokens and the architecture's special tokens, no merges), saved with ``save_pretrained`` and loaded back
 through ``AutoProcessor`` / ``AutoModelForImageTextToText`` like a downloaded model. Their weights are RANDOM
@@ -125,6 +125,32 @@ def _idefics3(out: Path, seed: int) -> None:
           pad=ids["<|endoftext|>"])
 
 
+def _paligemma(out: Path, seed: int) -> None:
+    from transformers import (
+        PaliGemmaConfig,
+        PaliGemmaForConditionalGeneration,
+        PaliGemmaProcessor,
+        SiglipImageProcessor,
+    )
+
+    specials = ["<pad>", "<bos>", "<eos>", "<image>"]
+    tok = byte_tokenizer(specials, bos="<bos>", eos="<eos>", pad="<pad>")
+    # one 32 px image, 8 px patches: (32 / 8)^2 = 16 image tokens; the processor adds PaliGemma's 1024 location
+    # and 128 segmentation tokens to the tokenizer, so the vocabulary is counted after it is built
+    image_processor = SiglipImageProcessor(size={"height": 32, "width": 32})
+    image_processor.image_seq_length = 16
+    processor = PaliGemmaProcessor(image_processor=image_processor, tokenizer=tok)
+    ids = dict(zip(specials, tok.convert_tokens_to_ids(specials)))
+    config = PaliGemmaConfig(
+        text_config={**TEXT_LAYERS, "model_type": "gemma2", "head_dim": 8, "vocab_size": len(tok),
+                     "bos_token_id": ids["<bos>"], "eos_token_id": ids["<eos>"], "pad_token_id": ids["<pad>"]},
+        vision_config={"hidden_size": 32, "intermediate_size": 64, "num_hidden_layers": 2, "num_attention_heads": 4,
+                       "image_size": 32, "patch_size": 8},
+        image_token_index=ids["<image>"], projection_dim=32, hidden_size=32,
+    )  # fmt: skip
+    _save(PaliGemmaForConditionalGeneration, config, processor, out, seed, eos=ids["<eos>"], pad=ids["<pad>"])
+
+
 def _save(model_cls: Any, config: Any, processor: Any, out: Path, seed: int, *, eos: int, pad: int) -> None:
     from transformers import GenerationConfig
 
@@ -139,7 +165,8 @@ def _save(model_cls: Any, config: Any, processor: Any, out: Path, seed: int, *, 
     processor.save_pretrained(out)
 
 
-TINY_BUILDERS: dict[str, Callable[[Path, int], None]] = {"qwen2_vl": _qwen2_vl, "idefics3": _idefics3}
+TINY_BUILDERS: dict[str, Callable[[Path, int], None]] = {"qwen2_vl": _qwen2_vl, "idefics3": _idefics3,
+                                                         "paligemma": _paligemma}
 TINY_ARCHS: tuple[str, ...] = tuple(TINY_BUILDERS)
 TINY_SPECS: dict[str, VLMSpec] = {
     "qwen2_vl": VLMSpec("tiny_qwen2_vl", "newtphys/tiny-random-qwen2_vl", "qwen2_vl", "AutoModelForImageTextToText",
@@ -148,6 +175,10 @@ TINY_SPECS: dict[str, VLMSpec] = {
     "idefics3": VLMSpec("tiny_idefics3", "newtphys/tiny-random-idefics3", "idefics3", "AutoModelForImageTextToText",
                         1e-4, dtype="float32", generation={"max_new_tokens": TINY_MAX_NEW_TOKENS},
                         description=FIXTURE_NOTE),
+    "paligemma": VLMSpec("tiny_paligemma", "newtphys/tiny-random-paligemma", "paligemma",
+                         "AutoModelForImageTextToText", 1e-4, dtype="float32", multi_image=False, max_images=1,
+                         chat_template="none", prompt_prefix="answer en ",
+                         generation={"max_new_tokens": TINY_MAX_NEW_TOKENS}, description=FIXTURE_NOTE),
 }  # fmt: skip
 """Records of the fixtures (``params_b`` nominal; the manifest gets the counted parameters)."""
 
