@@ -15,8 +15,10 @@ greedy decode memory-bound (each of T_out steps reads the bf16 weights once per 
 T_in = the set's mean prompt characters / 4 (characters per text token) + mean images per item x visual
 tokens per image (V). Single-image models get only the single items (the set's share). Defaults: H200 SXM
 (F = 989e12 dense bf16, BW = 4.8e12 B/s), u = 0.4, B = 8, T_out = 16 (the records' max_new_tokens, an upper
-bound), V = 256 (a 448 px image in Qwen2-VL's merged 28 px patches: (448 / 28)^2). Every assumption is an argument and is
-printed with the table; multi-GPU models (device_map) are projected as one GPU of the summed speed.
+bound), V = 256 (a 448 px image in Qwen2-VL's merged 28 px patches: (448 / 28)^2). Every assumption is an
+argument and is printed with the table; multi-GPU models (device_map) are projected as one GPU of the summed
+speed. It is an optimistic bound: transformers' generate() with padding, image preprocessing on the CPU and
+Python overhead are slower; measure one model on the GPU and set --utilisation from it.
 
     python bench/bench_vlm.py [--vqa-dir DIR] [--quick]   (writes bench/results/vlm[_quick].json)
 """

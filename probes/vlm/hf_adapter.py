@@ -215,6 +215,12 @@ class PaliGemmaAnswerer(HFAnswerer):
     def render(self, prompt: Prompt) -> str:
         return self.spec.prompt_prefix + prompt.text
 
+    def inputs(self, prompts: list[Prompt]) -> Any:
+        if any(len(p.images) != 1 for p in prompts):
+            raise ValueError(f"VLM {self.name!r} (PaliGemma) takes exactly one image per prompt; blind=true cannot "
+                             "remove it: evaluate the set's black_image variant instead")  # fmt: skip
+        return super().inputs(prompts)
+
 
 FAMILY_ADAPTERS: dict[str, type[HFAnswerer]] = {"paligemma": PaliGemmaAnswerer}
 

@@ -85,3 +85,11 @@ def test_tiny_weights_are_seeded(tiny_cache: Path, tmp_path: Path):
     c = build_tiny_answerer("idefics3", seed=1, cache_dir=str(tmp_path)).model.state_dict()
     key = next(k for k in a if "embed_tokens" in k)
     assert torch.equal(a[key], b[key]) and not torch.equal(a[key], c[key])
+
+
+def test_blind_paligemma_is_refused_with_the_reason(vlm_set: Path, tiny_cache: Path):
+    from probes.vlm.baselines import Blind
+
+    blind = Blind(build_tiny_answerer("paligemma", cache_dir=str(tiny_cache)))
+    with pytest.raises(ValueError, match="exactly one image per prompt; blind=true cannot remove it"):
+        blind.answer([build_prompt(vs.read_items(vlm_set)[0], vlm_set)])
