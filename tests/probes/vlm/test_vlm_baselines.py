@@ -35,6 +35,9 @@ def test_oracle_scores_exactly_one(vlm_set: Path, tmp_path: Path, circular: bool
         assert {p.raw for p in preds if answers[p.idx].answer == "A" and p.rotation == 1} == {"D"}
     assert scores["strict"]["overall"] == 1.0 and scores["lenient"]["overall"] == 1.0
     assert scores["items"] == 18 and scores["circular"] is circular
+    if circular:  # trivial predictors under the same rule: a constant letter is right at one rotation only
+        assert scores["baselines"]["chance"] == 0.25**4
+        assert [scores["baselines"][f"constant_{c}"] for c in "ABCD"] == [0.0] * 4
 
 
 def test_random_is_within_its_own_95_interval_of_chance_on_400_items(tmp_path: Path):

@@ -31,7 +31,8 @@ def test_cli_answers_scores_and_logs_offline(vlm_set: Path, tmp_path: Path, monk
     run_dir = tmp_path / "vqa-test" / "oracle"
     assert out["run_dir"] == run_dir and out["scores"]["strict"]["overall"] == 1.0
     scores = json.loads((run_dir / "scores.json").read_text())
-    assert scores["strict"]["overall"] == 1.0 and scores["best_trivial"]["overall"] == pytest.approx(5 / 18)
+    assert scores["strict"]["overall"] == 1.0 and scores["baselines"]["constant_A"] == pytest.approx(5 / 18)
+    assert scores["best_trivial"]["overall"] == max(scores["baselines"].values())
     assert list((run_dir / "wandb").glob("offline-run-*")), "no offline W&B run written"
     # vqa_dir may be the set root with split=...
     again = run(_cfg("oracle", vlm_set.parent, tmp_path, "split=test", "wandb.enabled=false"))
@@ -73,6 +74,7 @@ def test_multirun_sweeps_answerers(vlm_set: Path, tmp_path: Path):
         cwd=REPO, env=env, capture_output=True, text=True, timeout=300, check=False,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
-    got = {p.name: json.loads((p / "scores.json").read_text())["strict"]["overall"]
-           for p in (tmp_path / "res" / "vqa-test").iterdir()}  # fmt: skip
-    assert set(got) == {"random", "oracle", "prior"} and got["oracle"] == 1.0
+    scores = {p.name: json.loads((p / "scores.json").read_text()) for p in (tmp_path / "res" / "vqa-test").iterdir()}
+    assert set(scores) == {"random", "oracle", "prior"} and scores["oracle"]["strict"]["overall"] == 1.0
+    # the prior answering through the loop scores what the scorer's prior baseline computes from the set
+    assert scores["prior"]["strict"]["overall"] == scores["oracle"]["baselines"]["prior"]

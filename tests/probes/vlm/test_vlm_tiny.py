@@ -73,7 +73,8 @@ def test_tiny_architecture_prompts_batches_and_manifest(arch: str, vlm_set: Path
     assert scores["weights"] == "random"
     for name, value in expected.items():
         assert scores["baselines"][name] == pytest.approx(value)
-    assert scores["best_trivial"]["overall"] == pytest.approx(max(expected.values()))
+    assert scores["best_trivial"]["overall"] == max(scores["baselines"].values())
+    assert scores["best_trivial"]["overall"] >= max(expected.values())
     assert 0.0 <= scores["strict"]["overall"] <= 1.0
 
 
