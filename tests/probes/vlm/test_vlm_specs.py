@@ -109,3 +109,16 @@ def test_paligemma_renders_a_task_prefix_without_chat_template():
     prompt = Prompt("i", (Path("a.png"),), "Q?\nA. x\nB. y\nC. z\nD. w\nReply ...", ("x", "y", "z", "w"))
     fake = SimpleNamespace(spec=get_spec("paligemma2_3b"))
     assert PaliGemmaAnswerer.render(fake, prompt) == "answer en Q?\nA. x\nB. y\nC. z\nD. w\nReply ..."
+
+
+def test_every_vlm_config_composes_and_names_a_callable_target():
+    import hydra
+    from hydra import compose, initialize_config_dir
+
+    names = sorted(p.stem for p in (CONFIG_DIR / "vlm").glob("*.yaml"))
+    assert {"random", "oracle", "constant_letter", "prior", "tiny_qwen2_vl", "tiny_idefics3", "tiny_paligemma"} <= set(names)
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        for name in names:
+            cfg = compose(config_name="evaluate_vlm", overrides=[f"vlm={name}"])
+            assert cfg.vlm.name == name and callable(hydra.utils.get_method(cfg.vlm._target_))
+            assert cfg.run_name == f"vlm-{name}"
