@@ -78,3 +78,14 @@ def test_multirun_sweeps_answerers(vlm_set: Path, tmp_path: Path):
     assert set(scores) == {"random", "oracle", "prior"} and scores["oracle"]["strict"]["overall"] == 1.0
     # the prior answering through the loop scores what the scorer's prior baseline computes from the set
     assert scores["prior"]["strict"]["overall"] == scores["oracle"]["baselines"]["prior"]
+
+
+def test_the_logged_config_says_the_weights_are_random(vlm_set: Path, tiny_cache: Path, tmp_path: Path, monkeypatch,
+                                                       one_thread):  # fmt: skip
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    out = run(_cfg("tiny_idefics3", vlm_set, tmp_path, f"vlm.cache_dir={tiny_cache}", "limit=4", "batch_size=4"))
+    assert out["result"].answered == 4 and out["scores"]["weights"] == "random"
+    (log_file,) = (out["run_dir"] / "wandb").glob("offline-run-*/run-*.wandb")
+    logged = log_file.read_bytes()  # the offline run's records: the config is stored as JSON text
+    assert b'"weights":"random"' in logged and b'"fixture":"TEST FIXTURE' in logged
+    assert b'"id":"newtphys/tiny-random-idefics3"' in logged
