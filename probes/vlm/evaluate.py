@@ -83,6 +83,39 @@ def to_record(prompt_options: tuple[str, ...], idx: str, rotation: int, gen: Any
                             tokens_in=gen.tokens_in, tokens_out=gen.tokens_out)  # fmt: skip
 
 
+def _answer_pending(answerer: Answerer, set_dir: Path, store: PredictionStore, items: list[vs.QuestionItem],
+                    circular: bool, batch_size: int, shard: tuple[int, int], progress: bool) -> int:  # fmt: skip
+    """Answer this shard's batches of the work list that are not in ``store`` yet; returns how many."""
+    index, count = shard
+    rotations = ROTATIONS if circular else (0,)
+    work = [(item, r) for item in items for r in rotations]
+    chunks = [work[i:i + batch_size] for i in range(0, len(work), batch_size)][index::count]
+    pending_chunks = [[(it, r) for it, r in c if (it.idx, r) not in store.done] for c in chunks]
+    pending_chunks = [c for c in pending_chunks if c]
+    log.info("%s on %s: %d items x %d rotation(s); %d predictions done, %d batches to go", answerer.name, set_dir,
+             len(items), len(rotations), len(store.done), len(pending_chunks))  # fmt: skip
+    answered = 0
+    bar = None
+    if progress and pending_chunks:
+        from tqdm import tqdm
+
+        bar = tqdm(total=sum(len(c) for c in pending_chunks), desc=f"{answerer.name}", unit="prompt")
+    try:
+        for chunk in pending_chunks:
+            prompts = [build_prompt(item, set_dir, r) for item, r in chunk]
+            gens = answerer.answer(prompts)
+            if len(gens) != len(prompts):
+                raise RuntimeError(f"answerer {answerer.name!r} returned {len(gens)} replies for {len(prompts)} "
+                                   "prompts")  # fmt: skip
+            answered += store.append(to_record(p.options, p.idx, p.rotation, g) for p, g in zip(prompts, gens))
+            if bar is not None:
+                bar.update(len(chunk))
+    finally:
+        if bar is not None:
+            bar.close()
+    return answered
+
+
 def evaluate(answerer: Answerer, set_dir: Path | str, run_dir: Path | str, *, batch_size: int = 8,
              circular: bool = False, limit: int | None = None, progress: bool = True,
              extra: dict[str, Any] | None = None, shard: tuple[int, int] = (0, 1)) -> EvalResult:  # fmt: skip
@@ -107,30 +140,8 @@ def evaluate(answerer: Answerer, set_dir: Path | str, run_dir: Path | str, *, ba
         items = items[:limit]
     manifest = make_manifest(answerer, set_dir, circular, {**(extra or {}), "skipped_items": skipped,
                                                            "shard": [index, count]})  # fmt: skip
-    store = PredictionStore(run_dir)
-    before = store.open(manifest)
-    rotations = ROTATIONS if circular else (0,)
-    work = [(item, r) for item in items for r in rotations]
-    chunks = [work[i:i + batch_size] for i in range(0, len(work), batch_size)][index::count]
-    pending_chunks = [[(it, r) for it, r in c if (it.idx, r) not in store.done] for c in chunks]
-    pending_chunks = [c for c in pending_chunks if c]
-    log.info("%s on %s: %d items x %d rotation(s); %d predictions done, %d batches to go", answerer.name, set_dir,
-             len(items), len(rotations), len(before), len(pending_chunks))  # fmt: skip
-    answered = 0
-    bar = None
-    if progress and pending_chunks:
-        from tqdm import tqdm
-
-        bar = tqdm(total=sum(len(c) for c in pending_chunks), desc=f"{answerer.name}", unit="prompt")
-    for chunk in pending_chunks:
-        prompts = [build_prompt(item, set_dir, r) for item, r in chunk]
-        gens = answerer.answer(prompts)
-        if len(gens) != len(prompts):
-            raise RuntimeError(f"answerer {answerer.name!r} returned {len(gens)} replies for {len(prompts)} prompts")
-        answered += store.append(to_record(p.options, p.idx, p.rotation, g) for p, g in zip(prompts, gens))
-        if bar is not None:
-            bar.update(len(chunk))
-    if bar is not None:
-        bar.close()
+    with PredictionStore(run_dir) as store:
+        before = store.open(manifest)
+        answered = _answer_pending(answerer, set_dir, store, items, circular, batch_size, (index, count), progress)
     return EvalResult(run_dir=Path(run_dir), manifest=manifest, items=len(items), skipped=skipped, answered=answered,
                       already_done=len(before), seconds=time.perf_counter() - start)  # fmt: skip

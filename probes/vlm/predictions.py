@@ -19,7 +19,7 @@ import os
 from collections.abc import Iterable
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, PredictionRecord, RunManifest
 
@@ -33,8 +33,15 @@ in principle); every other key is the model's identity."""
 IDENTITY_FIELDS: tuple[str, ...] = ("answerer", "question_set_sha256", "prompt_template_sha256", "circular")
 
 
+LOCK_FILE = ".lock"
+
+
 class MixedRunError(RuntimeError):
     """A run directory holds predictions of another question set, prompt template or model."""
+
+
+class RunDirectoryBusy(RuntimeError):
+    """Another process is writing the same run directory."""
 
 
 def _identity(manifest: dict[str, Any]) -> dict[str, Any]:
@@ -125,11 +132,46 @@ class PredictionStore:
         self.path = self.run_dir / PREDICTIONS_FILE
         self.manifest_path = self.run_dir / MANIFEST_FILE
         self.done: set[tuple[str, int]] = set()
+        self._lock: Any = None
+
+    def _acquire(self) -> None:
+        """An exclusive ``flock`` on ``<run_dir>/.lock`` for the store's life (the kernel drops it when the
+        process dies, ``kill -9`` included); a second writer is refused instead of duplicating items."""
+        import fcntl
+
+        f = open(self.run_dir / LOCK_FILE, "a")  # noqa: SIM115 (held open until close())
+        try:
+            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.close()
+            raise RunDirectoryBusy(f"{self.run_dir}: another process is writing this run directory (its lock "
+                                   f"{self.run_dir / LOCK_FILE} is held); wait for it or use another run_dir") from None
+        self._lock = f
+
+    def close(self) -> None:
+        """Release the run directory."""
+        if self._lock is not None:
+            self._lock.close()
+            self._lock = None
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def open(self, manifest: RunManifest) -> list[PredictionRecord]:
-        """Write ``manifest`` (first run) or refuse a different one; cut a torn tail; return the records
-        already done."""
+        """Lock the run directory; write ``manifest`` (first run) or refuse a different one; cut a torn tail;
+        return the records already done."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        self._acquire()
+        try:
+            return self._open(manifest)
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self, manifest: RunManifest) -> list[PredictionRecord]:
         new = json.loads(manifest.to_json())
         if self.manifest_path.is_file():
             old = json.loads(self.manifest_path.read_text())

@@ -18,7 +18,13 @@ import pytest
 from probes.vlm.baselines import ConstantLetterAnswerer, RandomAnswerer, build_baseline
 from probes.vlm.evaluate import evaluate
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, PredictionRecord
-from probes.vlm.predictions import MixedRunError, PredictionStore, cut_torn_tail, read_predictions
+from probes.vlm.predictions import (
+    MixedRunError,
+    PredictionStore,
+    RunDirectoryBusy,
+    cut_torn_tail,
+    read_predictions,
+)
 from tests.probes.vlm.conftest import write_question_set
 
 REPO = Path(__file__).resolve().parents[3]
@@ -87,6 +93,17 @@ def test_store_refuses_to_write_twice_and_reads_duplicates_as_an_error(vlm_set: 
     store.path.write_text(store.path.read_text() + rec.to_json() + "\n")
     with pytest.raises(ValueError, match=r"predictions\.jsonl:3: .* duplicates line 1"):
         read_predictions(store.path)
+
+
+def test_a_second_writer_of_the_same_run_directory_is_refused(vlm_set: Path, tmp_path: Path):
+    from probes.vlm.evaluate import make_manifest
+
+    manifest = make_manifest(RandomAnswerer(0), vlm_set, circular=False)
+    with PredictionStore(tmp_path / "r") as first:
+        first.open(manifest)
+        with pytest.raises(RunDirectoryBusy, match="another process is writing this run directory"):
+            evaluate(RandomAnswerer(0), vlm_set, tmp_path / "r", progress=False)
+    assert evaluate(RandomAnswerer(0), vlm_set, tmp_path / "r", progress=False).answered == 18  # released
 
 
 KILL_SCRIPT = """
