@@ -9,6 +9,8 @@
   the question set, the prompt template, the circular mode or the model's identity is refused with
   :class:`MixedRunError` naming the differences (volatile settings such as the device or batch size may
   change between runs).
+* While a store is open it holds an exclusive ``flock`` on ``<run_dir>/.lock``: a second process writing the
+  same directory gets :class:`RunDirectoryBusy` (the kernel releases the lock of a killed process).
 """
 
 from __future__ import annotations
