@@ -1,6 +1,7 @@
 """How a NewtPhys item is prompted and scored (the evaluation protocol, docs/vqa_contract.md): the prompt
 (question, options "A. ...", an instruction to answer with the letter only), the answer extraction (a letter
-A-D alone or at the end of the reply, case-insensitive; anything else is wrong) and the macro accuracy
+A-D alone or at the end of the reply, case-insensitive; anything else is wrong; a lenient variant, reported
+apart, also accepts the one option whose text the reply contains) and the macro accuracy
 (mean per question id, then per sub-category, then per category, then overall).
 
 Standalone on purpose (standard library; Pillow only to open images): ``python -m newtphys export-vqa
@@ -36,6 +37,30 @@ def extract_letter(reply: str) -> str | None:
     text = str(reply).strip().rstrip(_TRAILING)
     m = _LAST_LETTER.search(text)
     return m.group(1).upper() if m else None
+
+
+def _normalise(text: str) -> str:
+    """Lower case, punctuation other than ``.`` ``%`` ``-`` ``/`` inside words dropped, spaces collapsed."""
+    text = re.sub(r"[^0-9a-z.%/\- ]+", " ", str(text).lower())
+    text = re.sub(r"(?<![0-9])\.|\.(?![0-9])", " ", text)  # a full stop, not a decimal point
+    return " ".join(text.split())
+
+
+def extract_letter_lenient(reply: str, options: Sequence[str]) -> str | None:
+    """The strict letter (:func:`extract_letter`) when there is one; else the letter of the one option whose
+    text the reply contains as whole words ("It weighs 0.50 kg" -> the option "0.50 kg"), case and
+    punctuation ignored. An option contained in another matched option ("1 kg" in "1 kg or more") yields to
+    it; several unrelated matches, or none, give None. Reported apart from the strict (paper's) number."""
+    strict = extract_letter(reply)
+    if strict is not None:
+        return strict
+    if len(options) != len(LETTERS):
+        raise ValueError(f"an item has {len(LETTERS)} options, got {len(options)}: {list(options)!r}")
+    text = f" {_normalise(reply)} "
+    matched = [k for k, o in enumerate(options) if _normalise(o) and f" {_normalise(o)} " in text]
+    keep = [k for k in matched
+            if not any(j != k and f" {_normalise(options[k])} " in f" {_normalise(options[j])} " for j in matched)]
+    return LETTERS[keep[0]] if len(keep) == 1 else None
 
 
 def macro_accuracy(records: Iterable[dict[str, Any]]) -> dict[str, Any]:
