@@ -150,16 +150,20 @@ def macro_score(results: Sequence[ItemResult], key: str = "strict", n_boot: int 
 
 
 def constant_letter_baseline(results: Sequence[ItemResult]) -> dict[str, Any]:
-    """Answering one letter everywhere: the macro accuracy per letter, the best one, the letter shares."""
+    """Answering one letter everywhere: the macro accuracy per letter, the best one (overall, and per
+    category the best letter of that category), the letter shares."""
     shares = Counter(r.answer for r in results)
     n = len(results)
-    per_letter = {}
+    per_letter, per_category = {}, {}
     for letter in vs.LETTERS:
         t = build_table((r.item.sequence_id, r.item.question_id, r.item.sub_category, r.item.category,
                          float(r.answer == letter)) for r in results)  # fmt: skip
-        per_letter[letter] = point_estimate(t)["overall"]
+        pe = point_estimate(t)
+        per_letter[letter], per_category[letter] = pe["overall"], pe["category"]
     best = max(vs.LETTERS, key=lambda k: (per_letter[k], -vs.LETTERS.index(k)))
+    category_best = {c: max(per_category[k][c] for k in vs.LETTERS) for c in per_category[best]}
     return {"letter": best, "overall": per_letter[best], "macro_per_letter": per_letter,
+            "category_best": category_best,
             "letter_share": {k: shares.get(k, 0) / n for k in vs.LETTERS},
             "best_share": max(shares.get(k, 0) for k in vs.LETTERS) / n}  # fmt: skip
 
