@@ -61,7 +61,8 @@ def per_category(runs: Sequence[Run]) -> Table:
     t = Table("per_category", "Accuracy per category (strict, 95 % CI over sequences) beside trivial baselines", cols,
               note="strict = the paper's letter rule; lenient apart; constant_letter = the best single letter of "
                    "that category; text_prior = blind leave-one-sequence-out prior (newtphys.vqa_prior).")  # fmt: skip
-    plot: dict[str, Any] = {"models": [], "categories": sorted(vs.CATEGORIES), "acc": {}, "ci": {}, "baselines": {}}
+    present = sorted({c for run in runs for c in run.scores["strict"]["category"]})
+    plot: dict[str, Any] = {"models": [], "categories": present, "acc": {}, "ci": {}, "baselines": {}}
     for run in runs:
         s, b = run.scores["strict"], run.scores["baselines"]
         n_cat: dict[str, int] = defaultdict(int)
@@ -258,7 +259,7 @@ def correlation(runs: Sequence[Run], benchmarks: dict[str, dict[str, float]]) ->
                 acc = run.scores["strict"]["overall"] if cat == "overall" else run.scores["strict"]["category"].get(cat)
                 if acc is not None and bench in row:
                     pts.append((run.label, row[bench], acc))
-            scatter.setdefault(bench, {})[cat] = pts
+            scatter.setdefault(bench, {})[cat] = {"points": pts, "r": None}
             if len(pts) < 3:
                 t.rows.append([bench, cat, len(pts), None, None, "not enough models"])
                 continue
@@ -267,6 +268,7 @@ def correlation(runs: Sequence[Run], benchmarks: dict[str, dict[str, float]]) ->
                 t.rows.append([bench, cat, len(pts), None, None, "; ".join(p[0] for p in pts)])
                 continue
             r, p = pearsonr(x, y)
+            scatter[bench][cat]["r"] = float(r)
             t.rows.append([bench, cat, len(pts), float(r), float(p), "; ".join(p_[0] for p_ in pts)])
     t.plot = scatter
     return t

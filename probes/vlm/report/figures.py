@@ -83,8 +83,9 @@ def binned_lines(plot: dict[str, list[tuple[str, float, float, float]]], path: P
         labels += [r[0] for r in rows if r[0] not in labels]
     fig = Figure(figsize=(max(6.0, 0.9 * len(labels) + 2), 4.0))
     ax = fig.add_subplot()
-    for model, rows in plot.items():
-        xs = [labels.index(r[0]) for r in rows]
+    offset = 0.25 / max(1, len(plot))
+    for k, (model, rows) in enumerate(plot.items()):
+        xs = [labels.index(r[0]) + (k - (len(plot) - 1) / 2) * offset for r in rows]
         ys = np.array([r[1] for r in rows])
         err = np.array([[r[1] - r[2], r[3] - r[1]] for r in rows]).T
         ax.errorbar(xs, ys, yerr=err, marker="o", capsize=2, label=model)
@@ -96,19 +97,19 @@ def binned_lines(plot: dict[str, list[tuple[str, float, float, float]]], path: P
     return _save(fig, path)
 
 
-def scatter_grid(plot: dict[str, list[tuple[str, float, float]]], path: Path, benchmark: str) -> Path:
-    """Category accuracy (y) against one benchmark's score (x), one panel per category."""
+def scatter_grid(plot: dict[str, dict[str, Any]], path: Path, benchmark: str) -> Path:
+    """Category accuracy (y) against one benchmark's score (x), one panel per category (title: Pearson r)."""
     cats = list(plot)
     ncol = min(4, len(cats))
     nrow = math.ceil(len(cats) / ncol)
     fig = Figure(figsize=(3.2 * ncol, 2.8 * nrow))
     for k, cat in enumerate(cats):
         ax = fig.add_subplot(nrow, ncol, k + 1)
-        pts = plot[cat]
+        pts, r = plot[cat]["points"], plot[cat]["r"]
         ax.scatter([p[1] for p in pts], [p[2] for p in pts], s=14)
         for label, x, y in pts:
             ax.annotate(label, (x, y), fontsize=5, xytext=(2, 2), textcoords="offset points")
-        ax.set_title(cat, fontsize=8)
+        ax.set_title(f"{cat} (n={len(pts)}, r={'–' if r is None else f'{r:.2f}'})", fontsize=8)
         ax.set_xlabel(benchmark, fontsize=7)
         ax.set_ylabel("accuracy", fontsize=7)
         ax.tick_params(labelsize=6)
