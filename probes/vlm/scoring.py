@@ -91,6 +91,43 @@ def read_predictions(run_dir: Path) -> dict[tuple[str, int], PredictionRecord]:
     return out
 
 
+def manifest_set_dir(manifest: dict[str, Any], run_dir: Path | str = "?") -> Path:
+    """The question-set split directory of a run: ``vqa_dir`` when it holds ``questions.jsonl`` (the evaluation
+    loop records the split directory), else ``<vqa_dir>/<split>``."""
+    root = Path(manifest["vqa_dir"])
+    for cand in (root, vs.split_dir(root, str(manifest.get("split", "")))):
+        if (cand / vs.QUESTIONS_FILE).is_file():
+            return cand
+    raise FileNotFoundError(f"{run_dir}/{MANIFEST_FILE}: no {vs.QUESTIONS_FILE} in vqa_dir={str(root)!r} nor in "
+                            f"its split {manifest.get('split')!r}; pass the set directory explicitly")  # fmt: skip
+
+
+def asked_items(items: Sequence[vs.QuestionItem], manifest: dict[str, Any]) -> tuple[set[str], dict[str, int]]:
+    """The idx the run's answerer was asked (the evaluation loop's selection, from the manifest): a
+    ``single_image_only`` model gets single items only, a model with ``max_images`` no item with more images,
+    ``extra["modes"]`` restricts the modes, ``extra["limit"]`` keeps the first N of those. Returns the idx set
+    and the counts left out by reason."""
+    model, extra = manifest.get("model") or {}, manifest.get("extra") or {}
+    modes = extra.get("modes")
+    max_images = model.get("max_images")
+    keep: list[str] = []
+    left: dict[str, int] = {"multi": 0, "too_many_images": 0, "mode": 0, "limit": 0}
+    for it in items:
+        if model.get("single_image_only") and it.mode != "single":
+            left["multi"] += 1
+        elif max_images is not None and len(it.images) > int(max_images):
+            left["too_many_images"] += 1
+        elif modes is not None and it.mode not in modes:
+            left["mode"] += 1
+        else:
+            keep.append(it.idx)
+    limit = extra.get("limit")
+    if limit is not None:
+        left["limit"] = max(0, len(keep) - int(limit))
+        keep = keep[: int(limit)]
+    return set(keep), left
+
+
 def check_set(manifest: dict[str, Any], set_dir: Path, run_dir: Path) -> None:
     """The run was made on this set: ``question_set_sha256`` matches ``questions.jsonl``."""
     want = manifest.get("question_set_sha256")
@@ -192,7 +229,14 @@ def _scope(results: Sequence[ItemResult], modes: Sequence[str], variant: str | N
     return [r for r in results if r.item.mode in modes and (variant is None or r.item.variant == variant)]
 
 
-def score_results(results: Sequence[ItemResult], modes: Sequence[str] | None = None, n_boot: int = 1000,
+def asked_results(results: Sequence[ItemResult], manifest: dict[str, Any]) -> tuple[list[ItemResult], dict[str, int]]:
+    """The results of the items the run's answerer was asked, and the counts left out (:func:`asked_items`)."""
+    asked, left = asked_items([r.item for r in results], manifest)
+    return [r for r in results if r.item.idx in asked], left
+
+
+def score_results(results: Sequence[ItemResult], not_asked: dict[str, int] | None = None,
+                  modes: Sequence[str] | None = None, n_boot: int = 1000,
                   seed: int = 0, level: float = 0.95, max_prior_items: int = PRIOR_MAX_ITEMS) -> dict[str, Any]:  # fmt: skip
     """The scores dictionary of :func:`score_run` from joined results (module docstring)."""
     modes = tuple(modes) if modes else tuple(sorted({r.item.mode for r in results}))
@@ -209,7 +253,8 @@ def score_results(results: Sequence[ItemResult], modes: Sequence[str] | None = N
                      "circular": circular},
         "coverage": {"items": len(head), "predicted": sum(r.predicted for r in head),
                      "missing": sum(not r.predicted for r in head),
-                     "unextracted_strict": sum(r.predicted and r.letter is None for r in head)},
+                     "unextracted_strict": sum(r.predicted and r.letter is None for r in head),
+                     "not_asked": dict(not_asked or {})},
         "strict": macro_score(head, "strict", n_boot, seed, level),
         "lenient": macro_score(head, "lenient", n_boot, seed, level),
         "circular": None,
@@ -246,15 +291,13 @@ def score_results(results: Sequence[ItemResult], modes: Sequence[str] | None = N
 def score_run(run_dir: Path | str, set_dir: Path | str | None = None, n_boot: int = 1000, seed: int = 0,
               level: float = 0.95, modes: Sequence[str] | None = None, write: bool = True) -> dict[str, Any]:  # fmt: skip
     """Scores of one run directory (module docstring); written to ``<run_dir>/scores.json`` when ``write``.
-    ``set_dir`` defaults to the manifest's ``<vqa_dir>/<split>``; ``modes`` to ``manifest.extra["modes"]``."""
+    ``set_dir`` defaults to the manifest's (:func:`manifest_set_dir`); the items scored are those the answerer
+    was asked (:func:`asked_items`), further restricted to ``modes`` when given."""
     run_dir = Path(run_dir)
     manifest = read_manifest(run_dir)
-    if set_dir is None:
-        set_dir = vs.split_dir(manifest["vqa_dir"], manifest["split"])
-    set_dir = Path(set_dir)
+    set_dir = Path(set_dir) if set_dir is not None else manifest_set_dir(manifest, run_dir)
     results = item_results(run_dir, set_dir)
-    modes = modes or (manifest.get("extra") or {}).get("modes")
-    scores = score_results(results, modes=modes, n_boot=n_boot, seed=seed, level=level)
+    scores = score_results(*asked_results(results, manifest), modes=modes, n_boot=n_boot, seed=seed, level=level)
     scores = {"run_dir": str(run_dir), "set_dir": str(set_dir), "answerer": manifest.get("answerer"),
               "model": manifest.get("model"), "question_set_sha256": manifest.get("question_set_sha256"), **scores}  # fmt: skip
     if write:

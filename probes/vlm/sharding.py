@@ -34,9 +34,11 @@ from typing import Any
 
 from newtphys import vqa_schema as vs
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, PredictionRecord
+from probes.vlm.scoring import asked_items, manifest_set_dir
 
-SHARD_KEYS: tuple[str, ...] = ("shard_index", "num_shards")
-"""Keys of ``RunManifest.extra`` that differ between the shards of one run (and are dropped by a merge)."""
+SHARD_KEYS: tuple[str, ...] = ("shard_index", "num_shards", "shard")
+"""Keys of ``RunManifest.extra`` that differ between the shards of one run (and are dropped by a merge):
+``shard_index`` + ``num_shards``, or ``shard`` = [index, count] (the evaluation loop's form)."""
 MERGE_VOLATILE_KEYS: tuple[str, ...] = ("started_at", "finished_at", "host", "hostname", "wall_s")
 """Other ``extra`` keys allowed to differ between shards (recorded per shard in ``merged_from``)."""
 
@@ -85,11 +87,20 @@ def _identity(manifest: dict[str, Any]) -> dict[str, Any]:
     return {**{k: v for k, v in manifest.items() if k != "extra"}, "extra": extra}
 
 
+def _shard_id(manifest: dict[str, Any]) -> tuple[int | None, int | None]:
+    extra = manifest.get("extra") or {}
+    if extra.get("shard") is not None:
+        index, count = extra["shard"]
+        return int(index), int(count)
+    return extra.get("shard_index"), extra.get("num_shards")
+
+
 def _expected_keys(set_dir: Path, manifest: dict[str, Any]) -> list[tuple[str, int]]:
-    modes = (manifest.get("extra") or {}).get("modes")
+    """(idx, rotation) the answerer was asked, in set order (:func:`probes.vlm.scoring.asked_items`)."""
     rotations = range(4) if manifest.get("circular") else range(1)
-    items = [it for it in vs.read_items(set_dir) if modes is None or it.mode in modes]
-    return [(it.idx, r) for it in items for r in rotations]
+    items = vs.read_items(set_dir)
+    asked, _ = asked_items(items, manifest)
+    return [(it.idx, r) for it in items if it.idx in asked for r in rotations]
 
 
 def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Path | str | None = None,
@@ -110,7 +121,7 @@ def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Pat
             k = diff[0]
             raise ValueError(f"merge_runs: {d}/{MANIFEST_FILE} disagrees with {dirs[0]}/{MANIFEST_FILE} on {diff}: "
                              f"{k}={ident.get(k)!r} vs {ref.get(k)!r}")  # fmt: skip
-    shard_ids = [((m.get("extra") or {}).get("shard_index"), (m.get("extra") or {}).get("num_shards")) for m in manifests]
+    shard_ids = [_shard_id(m) for m in manifests]
     if any(n is not None for _, n in shard_ids):
         nums = {n for _, n in shard_ids}
         if len(nums) != 1 or None in nums:
@@ -135,7 +146,7 @@ def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Pat
                                  f"{path}:{line}")  # fmt: skip
             seen[key], records[key] = path, rec
     m0 = manifests[0]
-    set_dir = Path(set_dir) if set_dir is not None else vs.split_dir(m0["vqa_dir"], m0["split"])
+    set_dir = Path(set_dir) if set_dir is not None else manifest_set_dir(m0, dirs[0])
     expected = _expected_keys(set_dir, m0)
     order = {key: k for k, key in enumerate(expected)}
     extra_keys = sorted(set(records) - set(order))

@@ -13,7 +13,8 @@ import pytest
 
 from newtphys.vqa_scoring import macro_accuracy
 from probes.vlm.bootstrap import bootstrap_ci, build_table, point_estimate
-from probes.vlm.scoring import item_results, score_run
+from newtphys import vqa_schema as vs
+from probes.vlm.scoring import item_results, manifest_set_dir, score_run
 from tests.fixtures.vlm_runs import item, write_run, write_set
 
 MASS, HEAVIEST = "F_MASS_OBJECT", "F_MASS_HEAVIEST_OBJECT"
@@ -43,7 +44,8 @@ def test_macro_aggregation_coverage_and_baselines_by_hand(tmp_path: Path) -> Non
     assert s["strict"]["category"] == {"material_understanding": 0.375, "spatial_reasoning": 0.5}
     assert s["strict"]["overall"] == 0.4375 and s["strict"]["micro"] == 0.5
     assert s["lenient"]["overall"] == (0.875 + 0.5) / 2  # density right when the option text counts
-    assert s["coverage"] == {"items": 6, "predicted": 5, "missing": 1, "unextracted_strict": 1}
+    assert s["coverage"] == {"items": 6, "predicted": 5, "missing": 1, "unextracted_strict": 1,
+                             "not_asked": {"multi": 0, "too_many_images": 0, "mode": 0, "limit": 0}}
     assert s["strict"]["n_sequences"] == 3
     # constant letter: answers A B C D A A; "A everywhere" -> mass .25, density 0, distance 1 -> .5625
     cl = s["baselines"]["constant_letter"]
@@ -65,8 +67,35 @@ def test_modes_from_the_manifest_restrict_the_scope(tmp_path: Path) -> None:
     run = write_run(tmp_path / "run", set_dir, {("p/single", 0): "A"}, extra={"modes": ["single"]})
     s = score_run(run, n_boot=0)
     assert s["coverage"]["items"] == 1 and s["strict"]["overall"] == 1.0 and s["protocol"]["modes"] == ["single"]
-    s_all = score_run(run, n_boot=0, modes=["single", "multi"], write=False)
+    assert s["coverage"]["not_asked"]["mode"] == 1
+    both = write_run(tmp_path / "both", set_dir, {("p/single", 0): "A"})  # asked everything: multi missing = wrong
+    s_all = score_run(both, n_boot=0)
     assert s_all["strict"]["overall"] == 0.5 and s_all["coverage"]["missing"] == 1
+    assert score_run(both, n_boot=0, modes=["single"], write=False)["strict"]["overall"] == 1.0  # restrict further
+
+
+def test_only_the_items_the_model_was_asked_are_scored(tmp_path: Path) -> None:
+    items = [item("p/single", "s1", MASS), item("p/multi", "s1", MASS, mode="multi"),
+             item("q/single", "s2", MASS), item("r/single", "s3", MASS)]  # fmt: skip
+    many = vs.QuestionItem(**{**item("r/single", "s3", MASS).__dict__, "images": ("a.png", "b.png", "c.png")})
+    items[3] = many
+    set_dir = write_set(tmp_path / "vqa" / "test", items, {it.idx: "A" for it in items})
+    preds = {("p/single", 0): "A", ("q/single", 0): "B"}
+    run = write_run(tmp_path / "run", set_dir, preds, model={"id": "m", "single_image_only": True, "max_images": 2})
+    s = score_run(run, n_boot=0)  # asked: p/single, q/single (multi and 3-image items never were)
+    assert s["coverage"]["items"] == 2 and s["coverage"]["missing"] == 0 and s["strict"]["overall"] == 0.5
+    assert s["coverage"]["not_asked"] == {"multi": 1, "too_many_images": 1, "mode": 0, "limit": 0}
+    run2 = write_run(tmp_path / "run2", set_dir, preds, extra={"limit": 1})  # smoke run: the first item only
+    s2 = score_run(run2, n_boot=0)
+    assert s2["coverage"]["items"] == 1 and s2["strict"]["overall"] == 1.0 and s2["coverage"]["not_asked"]["limit"] == 3
+
+
+def test_the_set_is_found_from_either_manifest_form(tmp_path: Path) -> None:
+    set_dir = write_set(tmp_path / "vqa" / "test", [item("p/single", "s1", MASS)], {"p/single": "A"})
+    assert manifest_set_dir({"vqa_dir": str(set_dir), "split": "test"}) == set_dir  # the split directory
+    assert manifest_set_dir({"vqa_dir": str(set_dir.parent), "split": "test"}) == set_dir  # the root + split
+    with pytest.raises(FileNotFoundError, match=r"no questions.jsonl in vqa_dir='/nowhere' nor in its split 'test'"):
+        manifest_set_dir({"vqa_dir": "/nowhere", "split": "test"})
 
 
 def test_circular_evaluation_needs_all_four_rotations(tmp_path: Path) -> None:

@@ -48,7 +48,7 @@ def test_bad_shard_arguments_name_the_allowed_range() -> None:
         shard_items(_items(), 0, 0)
 
 
-def _sharded_runs(tmp_path: Path, n: int = 3) -> tuple[Path, list[Path], dict]:
+def _sharded_runs(tmp_path: Path, n: int = 3, loop_form: bool = False) -> tuple[Path, list[Path], dict]:
     items = _items()
     letters = {it.idx: "ABCD"[k % 4] for k, it in enumerate(items)}
     set_dir = write_set(tmp_path / "vqa" / "test", items, letters)
@@ -56,7 +56,8 @@ def _sharded_runs(tmp_path: Path, n: int = 3) -> tuple[Path, list[Path], dict]:
     runs = []
     for k in range(n):
         mine = {(it.idx, 0): preds[(it.idx, 0)] for it in shard_items(items, k, n)}
-        runs.append(write_run(tmp_path / f"shard{k}", set_dir, mine, extra={"shard_index": k, "num_shards": n}))
+        extra = {"shard": [k, n], "batch_size": 8} if loop_form else {"shard_index": k, "num_shards": n}
+        runs.append(write_run(tmp_path / f"shard{k}", set_dir, mine, extra=extra))
     return set_dir, runs, preds
 
 
@@ -73,6 +74,15 @@ def test_merged_shards_equal_the_unsharded_run(tmp_path: Path) -> None:
     assert a["strict"] == b["strict"] and a["coverage"] == b["coverage"]
     with pytest.raises(FileExistsError, match="merge into a new directory"):
         merge_runs(runs, tmp_path / "merged")
+
+
+def test_merge_reads_the_evaluation_loops_shard_key(tmp_path: Path) -> None:
+    _, runs, _ = _sharded_runs(tmp_path, 2, loop_form=True)  # extra["shard"] = [index, count]
+    assert merge_runs(runs, tmp_path / "merged")["predictions"] == 18
+    extra = json.loads((tmp_path / "merged" / "manifest.json").read_text())["extra"]
+    assert "shard" not in extra and extra["batch_size"] == 8 and [m["shard"] for m in extra["merged_from"]] == [[0, 2], [1, 2]]
+    with pytest.raises(ValueError, match=r"num_shards=2 but shard_index \[0\]: missing \[1\]"):
+        merge_runs(runs[:1], tmp_path / "m2")
 
 
 def test_merge_refuses_disagreeing_duplicate_missing_and_incomplete(tmp_path: Path) -> None:

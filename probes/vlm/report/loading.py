@@ -9,9 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from newtphys import vqa_schema as vs
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE
-from probes.vlm.scoring import ItemResult, item_results, read_manifest, score_results
+from probes.vlm.scoring import ItemResult, asked_results, item_results, manifest_set_dir, read_manifest, score_results
 
 SIZE_KEYS_B: tuple[str, ...] = ("params_b", "size_b", "num_params_b", "parameters_b")
 """Keys of a manifest's ``model`` record read as the model size in billions of parameters."""
@@ -107,9 +106,9 @@ def load_runs(paths: list[Path], set_dir: Path | None = None, n_boot: int = 1000
     runs: list[Run] = []
     for d in find_run_dirs(paths):
         manifest = read_manifest(d)
-        sd = Path(set_dir) if set_dir else vs.split_dir(manifest["vqa_dir"], manifest["split"])
-        results = item_results(d, sd)
-        scores = score_results(results, modes=(manifest.get("extra") or {}).get("modes"), n_boot=n_boot, seed=seed)
+        sd = Path(set_dir) if set_dir else manifest_set_dir(manifest, d)
+        results, not_asked = asked_results(item_results(d, sd), manifest)
+        scores = score_results(results, not_asked, n_boot=n_boot, seed=seed)
         model = manifest.get("model") or {}
         aliases = tuple(dict.fromkeys(str(a) for a in (manifest.get("answerer"), model.get("id"), model.get("name"))
                                       if a))  # fmt: skip
