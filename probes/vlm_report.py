@@ -38,10 +38,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--benchmarks", type=Path, default=None, help="CSV: model, <benchmark>...")
     p.add_argument("--n-boot", type=int, default=1000, help="bootstrap replicates (0: no intervals)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--size-bins", default=",".join(f"{e:g}" for e in DEFAULT_SIZE_EDGES_B),
-                   help="model-size bin edges, billions of parameters")
-    p.add_argument("--young-bins", default=",".join(f"{e:g}" for e in DEFAULT_YOUNG_LOG10_EDGES),
-                   help="log10(Young's modulus / Pa) bin edges")
+    p.add_argument(
+        "--size-bins",
+        default=",".join(f"{e:g}" for e in DEFAULT_SIZE_EDGES_B),
+        help="model-size bin edges, billions of parameters",
+    )
+    p.add_argument(
+        "--young-bins",
+        default=",".join(f"{e:g}" for e in DEFAULT_YOUNG_LOG10_EDGES),
+        help="log10(Young's modulus / Pa) bin edges",
+    )
     p.add_argument("--wandb-project", default=None, help="also log to this W&B project")
     p.add_argument("--wandb-mode", default=None, choices=["online", "offline", "disabled"])
     args = p.parse_args(argv)
@@ -57,7 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.wandb_project:
         from probes.vlm.report.wandb_log import log_report
 
-        print(f"W&B run files: {log_report(tables, written['summary'], args.out, args.wandb_project, args.wandb_mode)}")
+        print(
+            f"W&B run files: {log_report(tables, written['summary'], args.out, args.wandb_project, args.wandb_mode)}"
+        )
     print(f"{len(runs)} run(s); written to {args.out}: {', '.join(written['files'])}")
     return 0
 

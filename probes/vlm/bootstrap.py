@@ -108,8 +108,8 @@ def bootstrap_ci(table: MacroTable, n_boot: int = 1000, seed: int = 0, level: fl
         b = min(BOOT_CHUNK, n_boot - start)
         weights = rng.multinomial(n, np.full(n, 1.0 / n), size=b).astype(float)
         lv = macro_levels(table, weights)
-        for key in chunks:
-            chunks[key].append(lv[key])
+        for key, parts in chunks.items():
+            parts.append(lv[key])
     q = [100 * (1 - level) / 2, 100 * (1 + level) / 2]
 
     def interval(samples: np.ndarray) -> list[float] | None:

@@ -185,14 +185,21 @@ class OpenAIServerAnswerer:
         if env:
             key = os.environ.get(env)
             if not key:
-                raise KeyError(f"openai_server config: api_key_env={env!r} but the environment variable is unset")
+                raise KeyError(
+                    f"openai_server config: api_key_env={env!r} but the environment variable is unset"
+                )
             headers["Authorization"] = f"Bearer {key}"
         return headers
 
     def _body(self, prompt: Prompt) -> dict[str, Any]:
         c = self.config
-        body: dict[str, Any] = {"model": c.model, "messages": chat_messages(prompt, c.system_prompt),
-                                "temperature": c.temperature, "max_tokens": c.max_tokens, "stream": False}
+        body: dict[str, Any] = {
+            "model": c.model,
+            "messages": chat_messages(prompt, c.system_prompt),
+            "temperature": c.temperature,
+            "max_tokens": c.max_tokens,
+            "stream": False,
+        }
         if c.send_seed:
             body["seed"] = c.seed
         return {**body, **c.extra_body}
@@ -241,11 +248,18 @@ class OpenAIServerAnswerer:
                         raise ServerError(f"POST {self.url}: HTTP 200 but not a chat completion ({e!r}): "
                                           f"{_excerpt(r.text)}", status, attempt + 1) from None  # fmt: skip
                     usage = reply.get("usage") or {}
-                    return text, usage.get("prompt_tokens"), usage.get("completion_tokens"), time.perf_counter() - start
+                    return (
+                        text,
+                        usage.get("prompt_tokens"),
+                        usage.get("completion_tokens"),
+                        time.perf_counter() - start,
+                    )
                 last = f"HTTP {status}: {_excerpt(r.text)}"
                 if status not in RETRY_STATUSES and status < 500:
                     self._count(failures=1)
-                    raise ServerError(f"POST {self.url} (model {c.model!r}): {last} (not retried)", status, attempt + 1)
+                    raise ServerError(
+                        f"POST {self.url} (model {c.model!r}): {last} (not retried)", status, attempt + 1
+                    )
                 retry_after = r.headers.get("retry-after")
             if attempt < c.max_retries:
                 wait = self._backoff_s(attempt, rng, retry_after)
@@ -285,4 +299,6 @@ class OpenAIServerAnswerer:
 def from_config(cfg: Mapping[str, Any]) -> OpenAIServerAnswerer:
     """The answerer of a ``vlm=openai_server`` config node (a plain mapping or resolved DictConfig)."""
     name = cfg.get("name") if hasattr(cfg, "get") else None
-    return OpenAIServerAnswerer(ServerConfig.from_mapping(cfg), name=name if name and name != "openai_server" else None)
+    return OpenAIServerAnswerer(
+        ServerConfig.from_mapping(cfg), name=name if name and name != "openai_server" else None
+    )

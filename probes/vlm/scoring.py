@@ -84,7 +84,9 @@ def read_predictions(run_dir: Path) -> dict[tuple[str, int], PredictionRecord]:
         rec = PredictionRecord.from_dict(d)
         key = (rec.idx, int(rec.rotation))
         if key in out:
-            raise ValueError(f"{path}:{line}: duplicate prediction for idx={rec.idx!r} rotation={rec.rotation}")
+            raise ValueError(
+                f"{path}:{line}: duplicate prediction for idx={rec.idx!r} rotation={rec.rotation}"
+            )
         if rec.rotation not in ROTATIONS:
             raise ValueError(f"{path}:{line}: rotation={rec.rotation!r}, allowed {list(ROTATIONS)}")
         out[key] = rec
@@ -102,7 +104,9 @@ def manifest_set_dir(manifest: dict[str, Any], run_dir: Path | str = "?") -> Pat
                             f"its split {manifest.get('split')!r}; pass the set directory explicitly")  # fmt: skip
 
 
-def asked_items(items: Sequence[vs.QuestionItem], manifest: dict[str, Any]) -> tuple[set[str], dict[str, int]]:
+def asked_items(
+    items: Sequence[vs.QuestionItem], manifest: dict[str, Any]
+) -> tuple[set[str], dict[str, int]]:
     """The idx the run's answerer was asked (the evaluation loop's selection, from the manifest): a
     ``single_image_only`` model gets single items only, a model with ``max_images`` no item with more images,
     ``extra["modes"]`` restricts the modes, ``extra["limit"]`` keeps the first N of those. Returns the idx set
@@ -216,20 +220,29 @@ def text_prior_baseline(results: Sequence[ItemResult], max_items: int = PRIOR_MA
     t = build_table((r.item.sequence_id, r.item.question_id, r.item.sub_category, r.item.category,
                      CHANCE if c is None else float(vs.LETTERS[c] == r.answer)) for r, c in zip(results, choices))  # fmt: skip
     pe = point_estimate(t)
-    return {"overall": pe["overall"], "category": pe["category"], "abstained": sum(c is None for c in choices)}
+    return {
+        "overall": pe["overall"],
+        "category": pe["category"],
+        "abstained": sum(c is None for c in choices),
+    }
 
 
 def baselines(results: Sequence[ItemResult], max_prior_items: int = PRIOR_MAX_ITEMS) -> dict[str, Any]:
     """Trivial predictors on the same items: chance, the best constant letter, the text prior."""
-    return {"chance": {"overall": CHANCE}, "constant_letter": constant_letter_baseline(results),
-            "text_prior": text_prior_baseline(results, max_prior_items)}
+    return {
+        "chance": {"overall": CHANCE},
+        "constant_letter": constant_letter_baseline(results),
+        "text_prior": text_prior_baseline(results, max_prior_items),
+    }
 
 
 def _scope(results: Sequence[ItemResult], modes: Sequence[str], variant: str | None) -> list[ItemResult]:
     return [r for r in results if r.item.mode in modes and (variant is None or r.item.variant == variant)]
 
 
-def asked_results(results: Sequence[ItemResult], manifest: dict[str, Any]) -> tuple[list[ItemResult], dict[str, int]]:
+def asked_results(
+    results: Sequence[ItemResult], manifest: dict[str, Any]
+) -> tuple[list[ItemResult], dict[str, int]]:
     """The results of the items the run's answerer was asked, and the counts left out (:func:`asked_items`)."""
     asked, left = asked_items([r.item for r in results], manifest)
     return [r for r in results if r.item.idx in asked], left
@@ -244,7 +257,9 @@ def score_results(results: Sequence[ItemResult], not_asked: dict[str, int] | Non
     analysed = [r for r in in_scope if vs.question_spec(r.item.question_id).in_analysis]
     head = [r for r in analysed if r.item.variant == vs.BASE_VARIANT]
     if not head:
-        raise ValueError(f"no base items of the analysed question ids in modes {list(modes)}: nothing to score")
+        raise ValueError(
+            f"no base items of the analysed question ids in modes {list(modes)}: nothing to score"
+        )
     circular = any(r.circular_strict is not None for r in results)
     out: dict[str, Any] = {
         "protocol": {"variant": vs.BASE_VARIANT, "modes": list(modes), "extraction": "strict = the paper's letter "
@@ -280,7 +295,11 @@ def score_results(results: Sequence[ItemResult], not_asked: dict[str, int] | Non
                                     "strict": macro_score(rs, "strict", n_boot, seed, level),
                                     "lenient": macro_accuracy(_records(rs, "lenient"))["overall"],
                                     "constant_letter": constant_letter_baseline(rs)["overall"]}  # fmt: skip
-    apart = [r for r in in_scope if not vs.question_spec(r.item.question_id).in_analysis and r.item.variant == "base"]
+    apart = [
+        r
+        for r in in_scope
+        if not vs.question_spec(r.item.question_id).in_analysis and r.item.variant == "base"
+    ]
     out["excluded_from_analysis"] = (
         {"n_items": len(apart), "question_id": macro_accuracy(_records(apart, "strict"))["question_id"]}
         if apart else {"n_items": 0, "question_id": {}}
@@ -297,7 +316,9 @@ def score_run(run_dir: Path | str, set_dir: Path | str | None = None, n_boot: in
     manifest = read_manifest(run_dir)
     set_dir = Path(set_dir) if set_dir is not None else manifest_set_dir(manifest, run_dir)
     results = item_results(run_dir, set_dir)
-    scores = score_results(*asked_results(results, manifest), modes=modes, n_boot=n_boot, seed=seed, level=level)
+    scores = score_results(
+        *asked_results(results, manifest), modes=modes, n_boot=n_boot, seed=seed, level=level
+    )
     scores = {"run_dir": str(run_dir), "set_dir": str(set_dir), "answerer": manifest.get("answerer"),
               "model": manifest.get("model"), "question_set_sha256": manifest.get("question_set_sha256"), **scores}  # fmt: skip
     if write:

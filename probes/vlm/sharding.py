@@ -47,7 +47,9 @@ def check_shard(shard_index: int, num_shards: int) -> None:
     if not isinstance(num_shards, int) or num_shards < 1:
         raise ValueError(f"num_shards={num_shards!r}, must be an integer >= 1")
     if not isinstance(shard_index, int) or not 0 <= shard_index < num_shards:
-        raise ValueError(f"shard_index={shard_index!r}, must be an integer in [0, {num_shards - 1}] (num_shards={num_shards})")
+        raise ValueError(
+            f"shard_index={shard_index!r}, must be an integer in [0, {num_shards - 1}] (num_shards={num_shards})"
+        )
 
 
 def shard_of_sequences(items: Sequence[vs.QuestionItem], num_shards: int) -> dict[str, int]:
@@ -83,7 +85,9 @@ def _manifest(run_dir: Path) -> dict[str, Any]:
 
 
 def _identity(manifest: dict[str, Any]) -> dict[str, Any]:
-    extra = {k: v for k, v in (manifest.get("extra") or {}).items() if k not in SHARD_KEYS + MERGE_VOLATILE_KEYS}
+    extra = {
+        k: v for k, v in (manifest.get("extra") or {}).items() if k not in SHARD_KEYS + MERGE_VOLATILE_KEYS
+    }
     return {**{k: v for k, v in manifest.items() if k != "extra"}, "extra": extra}
 
 
@@ -125,13 +129,17 @@ def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Pat
     if any(n is not None for _, n in shard_ids):
         nums = {n for _, n in shard_ids}
         if len(nums) != 1 or None in nums:
-            raise ValueError(f"merge_runs: shards disagree on num_shards: {[n for _, n in shard_ids]} ({[str(d) for d in dirs]})")
+            raise ValueError(
+                f"merge_runs: shards disagree on num_shards: {[n for _, n in shard_ids]} ({[str(d) for d in dirs]})"
+            )
         n = nums.pop()
         got = sorted(k for k, _ in shard_ids)
         if got != list(range(n)):
             missing = sorted(set(range(n)) - set(got))
             dup = sorted({k for k in got if got.count(k) > 1})
-            raise ValueError(f"merge_runs: num_shards={n} but shard_index {got}: missing {missing}, repeated {dup}")
+            raise ValueError(
+                f"merge_runs: num_shards={n} but shard_index {got}: missing {missing}, repeated {dup}"
+            )
     seen: dict[tuple[str, int], Path] = {}
     records: dict[tuple[str, int], PredictionRecord] = {}
     for d in dirs:
@@ -164,19 +172,25 @@ def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Pat
     merged = {**m0, "extra": {**ref["extra"], "merged_from": [
         {"run_dir": str(d), **{k: (m.get("extra") or {}).get(k) for k in SHARD_KEYS + MERGE_VOLATILE_KEYS
                                if k in (m.get("extra") or {})}} for d, m in zip(dirs, manifests, strict=True)]}}  # fmt: skip
-    vs.write_jsonl(out / PREDICTIONS_FILE, (records[key].to_json() for key in sorted(records, key=order.__getitem__)))
+    vs.write_jsonl(
+        out / PREDICTIONS_FILE, (records[key].to_json() for key in sorted(records, key=order.__getitem__))
+    )
     (out / MANIFEST_FILE).write_text(json.dumps(merged, indent=2, sort_keys=True))
     return {"shards": len(dirs), "predictions": len(records), "expected": len(expected), "missing": len(missing),
             "out_dir": str(out)}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m probes.vlm.sharding", description="Merge shard run directories.")
+    p = argparse.ArgumentParser(
+        prog="python -m probes.vlm.sharding", description="Merge shard run directories."
+    )
     sub = p.add_subparsers(dest="command", required=True)
     m = sub.add_parser("merge", help="merge the run directories of the shards of one run")
     m.add_argument("run_dirs", nargs="+", type=Path)
     m.add_argument("--out", required=True, type=Path)
-    m.add_argument("--set-dir", type=Path, default=None, help="the question set split (default: from the manifest)")
+    m.add_argument(
+        "--set-dir", type=Path, default=None, help="the question set split (default: from the manifest)"
+    )
     m.add_argument("--allow-incomplete", action="store_true")
     args = p.parse_args(argv)
     print(json.dumps(merge_runs(args.run_dirs, args.out, args.set_dir, args.allow_incomplete), indent=2))

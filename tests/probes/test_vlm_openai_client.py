@@ -105,7 +105,9 @@ def test_a_request_past_the_timeout_is_retried(server, tmp_path: Path) -> None:
 def test_retries_exhausted_name_the_url_status_and_body(server, tmp_path: Path) -> None:
     url = server("--fail-first", "5")
     answerer = _answerer(url, max_retries=2)
-    with pytest.raises(ServerError, match=r"gave up after 3 attempts; last: HTTP 500: .*injected failure 3") as e:
+    with pytest.raises(
+        ServerError, match=r"gave up after 3 attempts; last: HTTP 500: .*injected failure 3"
+    ) as e:
         answerer.answer(_prompts(tmp_path, "A"))
     assert url + "/chat/completions" in str(e.value) and e.value.status == 500
     assert _stats(url)["requests"] == 3
@@ -185,4 +187,6 @@ def test_the_hydra_config_builds_the_client() -> None:
     answerer = from_config(OmegaConf.to_container(cfg, resolve=True))
     assert answerer.config.temperature == 0.0 and answerer.config.max_tokens == 16
     assert answerer.url == "http://127.0.0.1:8000/v1/chat/completions"
-    assert answerer.name == "openai:Qwen/Qwen2.5-VL-7B-Instruct" and answerer.describe()["weights"] == "served"
+    assert (
+        answerer.name == "openai:Qwen/Qwen2.5-VL-7B-Instruct" and answerer.describe()["weights"] == "served"
+    )

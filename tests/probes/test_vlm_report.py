@@ -34,9 +34,18 @@ def runs_dir(tmp_path: Path) -> Path:
     for j in range(8):
         meta = {"num_objects": 2 if j % 2 == 0 else 3}
         ans = "ABCD"[j % 4]
-        rows = [item(f"m{j}/single", f"s{j}", MASS, meta={**meta, "young_modulus_pa": 1e6 if j < 4 else 1e11}),
-                item(f"k{j}/single", f"s{j}", SPEED, meta=meta),
-                item(f"m{j}/roi_masked/single", f"s{j}", MASS, variant="roi_masked", pair=f"m{j}/roi_masked", meta=meta)]
+        rows = [
+            item(f"m{j}/single", f"s{j}", MASS, meta={**meta, "young_modulus_pa": 1e6 if j < 4 else 1e11}),
+            item(f"k{j}/single", f"s{j}", SPEED, meta=meta),
+            item(
+                f"m{j}/roi_masked/single",
+                f"s{j}",
+                MASS,
+                variant="roi_masked",
+                pair=f"m{j}/roi_masked",
+                meta=meta,
+            ),
+        ]
         if j < 2:
             rows.append(item(f"k{j}/cf_gravity/single", f"s{j}", "CF_" + SPEED, variant="cf_gravity",
                              pair=f"k{j}/cf_gravity", meta=meta))  # fmt: skip
@@ -47,7 +56,9 @@ def runs_dir(tmp_path: Path) -> Path:
             items.append(it)
             answers[it.idx] = ans
     set_dir = write_set(tmp_path / "vqa" / "test", items, answers)
-    for k in range(3):  # model k is right on m_j for j < 2(k+1); always right on base k and cues; never on cf/masked
+    for k in range(
+        3
+    ):  # model k is right on m_j for j < 2(k+1); always right on base k and cues; never on cf/masked
         preds = {}
         for it in items:
             j = int(it.pair.split("/")[0][1:])
@@ -74,7 +85,9 @@ def test_report_tables_by_hand(runs_dir: Path) -> None:
     assert pc[("M1", "material_understanding")][3] == 0.5 and pc[("M1", "mechanics")][3] == 1.0
     assert pc[("M1", "overall")][3] == 0.75 and pc[("M1", "overall")][2] == 16  # 8 mass + 8 speed base items
     assert pc[("M0", "material_understanding")][7] == 0.25  # chance beside it
-    assert pc[("M0", "material_understanding")][8] == 0.25  # best constant letter of the category: 2 of 8 each
+    assert (
+        pc[("M0", "material_understanding")][8] == 0.25
+    )  # best constant letter of the category: 2 of 8 each
     heat = {r[0]: r for r in tables["subcategory_heatmap"].rows}
     assert tables["subcategory_heatmap"].columns == ["model", "kinematics", "mass", "overall"]
     assert heat["M2"][1:] == [1.0, 0.75, 0.875]
@@ -84,7 +97,11 @@ def test_report_tables_by_hand(runs_dir: Path) -> None:
     assert ym[("M1", "[1e6, 1e7) Pa")][2:5] == [4, 4, 1.0] and ym[("M1", "[1e11, 1e13) Pa")][4] == 0.0
     assert ym[("M0", "[1e6, 1e7) Pa")][4] == 0.5
     objs = {(r[0], r[1]): r for r in tables["by_num_objects"].rows}
-    assert objs[("M1", "2")][2] == 8 and objs[("M1", "2")][4] == 0.75 and objs[("M0", "3")][4] == pytest.approx(5 / 8)
+    assert (
+        objs[("M1", "2")][2] == 8
+        and objs[("M1", "2")][4] == 0.75
+        and objs[("M0", "3")][4] == pytest.approx(5 / 8)
+    )
     masked = {(r[0], r[1]): r for r in tables["delta_masked"].rows}
     assert masked[("M0", "roi_masked")][2:7] == [8, 8, 0.25, 0.0, -0.25]
     assert "black_image" in tables["delta_masked"].note and "not enough items" in tables["delta_masked"].note
@@ -96,7 +113,9 @@ def test_report_tables_by_hand(runs_dir: Path) -> None:
     assert level.empty and "not enough items" in level.note
     corr = {(r[0], r[1]): r for r in tables["correlation"].rows}
     assert corr[("commonsense", "material_understanding")][2] == 3
-    assert corr[("commonsense", "material_understanding")][3] == pytest.approx(1.0)  # 0.25, 0.5, 0.75 vs 10, 20, 30
+    assert corr[("commonsense", "material_understanding")][3] == pytest.approx(
+        1.0
+    )  # 0.25, 0.5, 0.75 vs 10, 20, 30
     assert corr[("commonsense", "mechanics")][3] is None  # constant accuracy: r undefined, not invented
     assert corr[("other", "overall")][2] == 2 and corr[("other", "overall")][5] == "not enough models"
 
@@ -110,7 +129,7 @@ def test_cli_writes_markdown_csv_png_without_pyplot(runs_dir: Path) -> None:
     proc = subprocess.run([sys.executable, "-c", code, str(runs_dir / "runs"), "--out", str(out), "--n-boot", "50",
                            "--sizes", str(runs_dir / "sizes.csv"), "--benchmarks", str(runs_dir / "bench.csv")],
                           capture_output=True, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
-                          timeout=120)  # fmt: skip
+                          timeout=120, check=False)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "PYPLOT False True" in proc.stdout
     md = (out / "report.md").read_text()

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from newtphys import vqa_schema as vs
 from newtphys.vqa_scoring import macro_accuracy
 from probes.vlm.bootstrap import bootstrap_ci, build_table, point_estimate
-from newtphys import vqa_schema as vs
 from probes.vlm.scoring import item_results, manifest_set_dir, score_run
 from tests.fixtures.vlm_runs import item, write_run, write_set
 
@@ -34,8 +34,15 @@ def _hand_set(tmp_path: Path) -> Path:
 
 def test_macro_aggregation_coverage_and_baselines_by_hand(tmp_path: Path) -> None:
     set_dir = _hand_set(tmp_path)
-    preds = {("a1/single", 0): "A", ("a2/single", 0): "C", ("b1/single", 0): "C", ("c1/single", 0): (None, "D"),
-             ("d2/single", 0): "A", ("e1/single", 0): "B", ("a1/roi_masked/single", 0): "B"}  # d1 missing
+    preds = {
+        ("a1/single", 0): "A",
+        ("a2/single", 0): "C",
+        ("b1/single", 0): "C",
+        ("c1/single", 0): (None, "D"),
+        ("d2/single", 0): "A",
+        ("e1/single", 0): "B",
+        ("a1/roi_masked/single", 0): "B",
+    }  # d1 missing
     run = write_run(tmp_path / "run", set_dir, preds)
     s = score_run(run, n_boot=200)  # set from the manifest
     # ids: mass 1/2, heaviest 1, density 0 (nothing extracted), distance 1/2 (d1 missing = wrong)
@@ -44,8 +51,13 @@ def test_macro_aggregation_coverage_and_baselines_by_hand(tmp_path: Path) -> Non
     assert s["strict"]["category"] == {"material_understanding": 0.375, "spatial_reasoning": 0.5}
     assert s["strict"]["overall"] == 0.4375 and s["strict"]["micro"] == 0.5
     assert s["lenient"]["overall"] == (0.875 + 0.5) / 2  # density right when the option text counts
-    assert s["coverage"] == {"items": 6, "predicted": 5, "missing": 1, "unextracted_strict": 1,
-                             "not_asked": {"multi": 0, "too_many_images": 0, "mode": 0, "limit": 0}}
+    assert s["coverage"] == {
+        "items": 6,
+        "predicted": 5,
+        "missing": 1,
+        "unextracted_strict": 1,
+        "not_asked": {"multi": 0, "too_many_images": 0, "mode": 0, "limit": 0},
+    }
     assert s["strict"]["n_sequences"] == 3
     # constant letter: answers A B C D A A; "A everywhere" -> mass .25, density 0, distance 1 -> .5625
     cl = s["baselines"]["constant_letter"]
@@ -55,7 +67,10 @@ def test_macro_aggregation_coverage_and_baselines_by_hand(tmp_path: Path) -> Non
     assert s["baselines"]["text_prior"]["abstained"] == 6  # no question text repeats across sequences
     assert s["baselines"]["text_prior"]["overall"] == 0.25
     # the variant and the excluded id are reported apart, never in the headline
-    assert s["variants"]["roi_masked"]["strict"]["overall"] == 0.0 and s["variants"]["roi_masked"]["n_items"] == 1
+    assert (
+        s["variants"]["roi_masked"]["strict"]["overall"] == 0.0
+        and s["variants"]["roi_masked"]["n_items"] == 1
+    )
     assert s["excluded_from_analysis"] == {"n_items": 1, "question_id": {OCCLUSION: 1.0}}
     assert s["circular"] is None and s["by_mode"]["single"]["strict"] == 0.4375
     assert json.loads((run / "scores.json").read_text())["strict"]["overall"] == 0.4375
@@ -66,12 +81,18 @@ def test_modes_from_the_manifest_restrict_the_scope(tmp_path: Path) -> None:
     set_dir = write_set(tmp_path / "vqa" / "test", items, {"p/single": "A", "p/multi": "B"})
     run = write_run(tmp_path / "run", set_dir, {("p/single", 0): "A"}, extra={"modes": ["single"]})
     s = score_run(run, n_boot=0)
-    assert s["coverage"]["items"] == 1 and s["strict"]["overall"] == 1.0 and s["protocol"]["modes"] == ["single"]
+    assert (
+        s["coverage"]["items"] == 1 and s["strict"]["overall"] == 1.0 and s["protocol"]["modes"] == ["single"]
+    )
     assert s["coverage"]["not_asked"]["mode"] == 1
-    both = write_run(tmp_path / "both", set_dir, {("p/single", 0): "A"})  # asked everything: multi missing = wrong
+    both = write_run(
+        tmp_path / "both", set_dir, {("p/single", 0): "A"}
+    )  # asked everything: multi missing = wrong
     s_all = score_run(both, n_boot=0)
     assert s_all["strict"]["overall"] == 0.5 and s_all["coverage"]["missing"] == 1
-    assert score_run(both, n_boot=0, modes=["single"], write=False)["strict"]["overall"] == 1.0  # restrict further
+    assert (
+        score_run(both, n_boot=0, modes=["single"], write=False)["strict"]["overall"] == 1.0
+    )  # restrict further
 
 
 def test_only_the_items_the_model_was_asked_are_scored(tmp_path: Path) -> None:
@@ -81,20 +102,28 @@ def test_only_the_items_the_model_was_asked_are_scored(tmp_path: Path) -> None:
     items[3] = many
     set_dir = write_set(tmp_path / "vqa" / "test", items, {it.idx: "A" for it in items})
     preds = {("p/single", 0): "A", ("q/single", 0): "B"}
-    run = write_run(tmp_path / "run", set_dir, preds, model={"id": "m", "single_image_only": True, "max_images": 2})
+    run = write_run(
+        tmp_path / "run", set_dir, preds, model={"id": "m", "single_image_only": True, "max_images": 2}
+    )
     s = score_run(run, n_boot=0)  # asked: p/single, q/single (multi and 3-image items never were)
     assert s["coverage"]["items"] == 2 and s["coverage"]["missing"] == 0 and s["strict"]["overall"] == 0.5
     assert s["coverage"]["not_asked"] == {"multi": 1, "too_many_images": 1, "mode": 0, "limit": 0}
     run2 = write_run(tmp_path / "run2", set_dir, preds, extra={"limit": 1})  # smoke run: the first item only
     s2 = score_run(run2, n_boot=0)
-    assert s2["coverage"]["items"] == 1 and s2["strict"]["overall"] == 1.0 and s2["coverage"]["not_asked"]["limit"] == 3
+    assert (
+        s2["coverage"]["items"] == 1
+        and s2["strict"]["overall"] == 1.0
+        and s2["coverage"]["not_asked"]["limit"] == 3
+    )
 
 
 def test_the_set_is_found_from_either_manifest_form(tmp_path: Path) -> None:
     set_dir = write_set(tmp_path / "vqa" / "test", [item("p/single", "s1", MASS)], {"p/single": "A"})
     assert manifest_set_dir({"vqa_dir": str(set_dir), "split": "test"}) == set_dir  # the split directory
     assert manifest_set_dir({"vqa_dir": str(set_dir.parent), "split": "test"}) == set_dir  # the root + split
-    with pytest.raises(FileNotFoundError, match=r"no questions.jsonl in vqa_dir='/nowhere' nor in its split 'test'"):
+    with pytest.raises(
+        FileNotFoundError, match=r"no questions.jsonl in vqa_dir='/nowhere' nor in its split 'test'"
+    ):
         manifest_set_dir({"vqa_dir": "/nowhere", "split": "test"})
 
 
@@ -137,13 +166,17 @@ def test_bootstrap_matches_macro_accuracy_and_is_seeded() -> None:
                          for r in rows)  # fmt: skip
     pe = point_estimate(table)
     assert pe["overall"] == pytest.approx(ref["overall"], abs=1e-12)
-    assert pe["category"] == pytest.approx(ref["category"]) and pe["question_id"] == pytest.approx(ref["question_id"])
+    assert pe["category"] == pytest.approx(ref["category"]) and pe["question_id"] == pytest.approx(
+        ref["question_id"]
+    )
     assert bootstrap_ci(table, 300, seed=5) == bootstrap_ci(table, 300, seed=5)
     assert bootstrap_ci(table, 300, seed=5)["overall"] != bootstrap_ci(table, 300, seed=6)["overall"]
 
 
 def test_identical_sequences_give_a_zero_width_interval() -> None:
-    rows = [(f"s{k}", MASS, "mass", "material_understanding", float(j == 0)) for k in range(20) for j in range(2)]
+    rows = [
+        (f"s{k}", MASS, "mass", "material_understanding", float(j == 0)) for k in range(20) for j in range(2)
+    ]
     ci = bootstrap_ci(build_table(rows), n_boot=500, seed=0)
     assert ci["overall"] == [0.5, 0.5] and ci["overall_se"] == 0.0
 
@@ -160,6 +193,8 @@ def test_bernoulli_interval_matches_the_analytic_width() -> None:
 
 def test_resampling_sequences_not_items_widens_the_interval_for_correlated_items() -> None:
     # 50 sequences of 10 items each, a sequence all right or all wrong: 50 independent draws, not 500
-    rows = [(f"s{k}", MASS, "mass", "material_understanding", float(k % 2)) for k in range(50) for _ in range(10)]
+    rows = [
+        (f"s{k}", MASS, "mass", "material_understanding", float(k % 2)) for k in range(50) for _ in range(10)
+    ]
     lo, hi = bootstrap_ci(build_table(rows), n_boot=2000, seed=2)["overall"]
     assert (hi - lo) / 2 == pytest.approx(1.96 * math.sqrt(0.25 / 50), rel=0.12)  # 0.139, not 0.044

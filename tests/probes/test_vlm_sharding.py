@@ -35,7 +35,9 @@ def test_whole_sequences_dealt_largest_first_to_the_lightest_shard() -> None:
     assert shard_of_sequences(shuffled, 2) == shard_of_sequences(items, 2)  # the set decides, not its order
     for n in (1, 3, 4, 7):
         parts = [shard_items(items, k, n) for k in range(n)]
-        assert sorted(it.idx for p in parts for it in p) == sorted(it.idx for it in items)  # disjoint and complete
+        assert sorted(it.idx for p in parts for it in p) == sorted(
+            it.idx for it in items
+        )  # disjoint and complete
         owners = {(it.sequence_id, k) for k, p in enumerate(parts) for it in p}
         assert len(owners) == len(SIZES)  # every sequence in exactly one shard
     assert shard_items(items, 0, 1) == items
@@ -64,12 +66,20 @@ def _sharded_runs(tmp_path: Path, n: int = 3, loop_form: bool = False) -> tuple[
 def test_merged_shards_equal_the_unsharded_run(tmp_path: Path) -> None:
     set_dir, runs, preds = _sharded_runs(tmp_path)
     summary = merge_runs(runs[::-1], tmp_path / "merged")  # any order
-    assert summary == {"shards": 3, "predictions": 18, "expected": 18, "missing": 0, "out_dir": str(tmp_path / "merged")}
+    assert summary == {
+        "shards": 3,
+        "predictions": 18,
+        "expected": 18,
+        "missing": 0,
+        "out_dir": str(tmp_path / "merged"),
+    }
     whole = write_run(tmp_path / "whole", set_dir, preds)
     lines = (tmp_path / "merged" / "predictions.jsonl").read_text()
     assert lines == (whole / "predictions.jsonl").read_text()  # same records, in set order
     manifest = json.loads((tmp_path / "merged" / "manifest.json").read_text())
-    assert "shard_index" not in manifest["extra"] and [m["shard_index"] for m in manifest["extra"]["merged_from"]] == [2, 1, 0]
+    assert "shard_index" not in manifest["extra"] and [
+        m["shard_index"] for m in manifest["extra"]["merged_from"]
+    ] == [2, 1, 0]
     a, b = score_run(tmp_path / "merged", n_boot=50), score_run(whole, n_boot=50)
     assert a["strict"] == b["strict"] and a["coverage"] == b["coverage"]
     with pytest.raises(FileExistsError, match="merge into a new directory"):
@@ -80,24 +90,34 @@ def test_merge_reads_the_evaluation_loops_shard_key(tmp_path: Path) -> None:
     _, runs, _ = _sharded_runs(tmp_path, 2, loop_form=True)  # extra["shard"] = [index, count]
     assert merge_runs(runs, tmp_path / "merged")["predictions"] == 18
     extra = json.loads((tmp_path / "merged" / "manifest.json").read_text())["extra"]
-    assert "shard" not in extra and extra["batch_size"] == 8 and [m["shard"] for m in extra["merged_from"]] == [[0, 2], [1, 2]]
+    assert (
+        "shard" not in extra
+        and extra["batch_size"] == 8
+        and [m["shard"] for m in extra["merged_from"]] == [[0, 2], [1, 2]]
+    )
     with pytest.raises(ValueError, match=r"num_shards=2 but shard_index \[0\]: missing \[1\]"):
         merge_runs(runs[:1], tmp_path / "m2")
 
 
 def test_merge_refuses_disagreeing_duplicate_missing_and_incomplete(tmp_path: Path) -> None:
-    set_dir, runs, preds = _sharded_runs(tmp_path)
+    set_dir, runs, _ = _sharded_runs(tmp_path)
     with pytest.raises(ValueError, match=r"num_shards=3 but shard_index \[0, 1\]: missing \[2\]"):
         merge_runs(runs[:2], tmp_path / "m1")
-    other = write_run(tmp_path / "other", set_dir, {}, answerer="another-model", extra={"shard_index": 2, "num_shards": 3})
-    with pytest.raises(ValueError, match=r"disagrees with .* on \['answerer', 'model'\]: answerer='another-model'"):
+    other = write_run(
+        tmp_path / "other", set_dir, {}, answerer="another-model", extra={"shard_index": 2, "num_shards": 3}
+    )
+    with pytest.raises(
+        ValueError, match=r"disagrees with .* on \['answerer', 'model'\]: answerer='another-model'"
+    ):
         merge_runs([*runs[:2], other], tmp_path / "m2")
-    first_idx = next(iter(json.loads(line)["idx"] for line in (runs[0] / "predictions.jsonl").read_text().splitlines()))
+    first_idx = next(
+        iter(json.loads(line)["idx"] for line in (runs[0] / "predictions.jsonl").read_text().splitlines())
+    )
     with open(runs[1] / "predictions.jsonl", "a") as f:
         f.write((runs[0] / "predictions.jsonl").read_text().splitlines()[0] + "\n")
     with pytest.raises(ValueError, match=rf"idx='{first_idx}' rotation=0 in both .*shard0.* and .*shard1"):
         merge_runs(runs, tmp_path / "m3")
-    set_dir, runs, preds = _sharded_runs(tmp_path / "b")
+    _, runs, _ = _sharded_runs(tmp_path / "b")
     lines = (runs[2] / "predictions.jsonl").read_text().splitlines()
     (runs[2] / "predictions.jsonl").write_text("\n".join(lines[1:]) + "\n")  # one item lost
     with pytest.raises(ValueError, match=r"misses 1 of 18 \(idx, rotation\)"):
@@ -117,4 +137,6 @@ def test_shard_launchers_compose_with_the_submitit_plugin(launcher: str) -> None
         cfg = compose(config_name="train", overrides=[f"hydra/launcher={launcher}"], return_hydra_config=True)
     GlobalHydra.instance().clear()
     assert cfg.hydra.launcher.gpus_per_node == 1 and cfg.hydra.launcher.tasks_per_node == 1
-    assert cfg.hydra.launcher._target_.endswith("SlurmLauncher" if launcher == "vlm_slurm" else "LocalLauncher")
+    assert cfg.hydra.launcher._target_.endswith(
+        "SlurmLauncher" if launcher == "vlm_slurm" else "LocalLauncher"
+    )

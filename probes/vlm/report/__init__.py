@@ -49,7 +49,9 @@ def _figure(t: Table, out: Path) -> list[Path]:
     if t.name.startswith("delta_"):
         return [figures.binned_lines(t.plot, out / f"{t.name}.png", "variant", "delta vs base (share right)")]
     if t.name == "correlation":
-        return [figures.scatter_grid(pts, out / f"correlation_{_safe(b)}.png", b) for b, pts in t.plot.items()]
+        return [
+            figures.scatter_grid(pts, out / f"correlation_{_safe(b)}.png", b) for b, pts in t.plot.items()
+        ]
     return []
 
 
@@ -60,11 +62,13 @@ def _safe(name: str) -> str:
 def write_report(runs: Sequence[Run], out: Path, tables: Sequence[Table]) -> dict[str, Any]:
     """``report.md``, ``<table>.csv`` per table, the PNGs and ``summary.json`` (per model headline numbers)."""
     out.mkdir(parents=True, exist_ok=True)
-    parts = ["# VLM evaluation report", "",
-             "Strict extraction (a letter A-D alone or at the end of the reply) is the paper's number; lenient "
-             "(option text matched) is reported apart. Missing predictions count as wrong. Intervals: 95 % "
-             "bootstrap over sequences.", "", "| model | items | coverage | strict | 95 % CI | lenient | "
-             "best constant letter | text prior | weights |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    intro = (
+        "Strict extraction (a letter A-D alone or at the end of the reply) is the paper's number; lenient "
+        "(option text matched) is reported apart. Missing predictions count as wrong. Intervals: 95 % "
+        "bootstrap over sequences."
+    )
+    header = "| model | items | coverage | strict | 95 % CI | lenient | best constant letter | text prior | weights |"
+    parts = ["# VLM evaluation report", "", intro, "", header, "|---|---|---|---|---|---|---|---|---|"]
     summary: dict[str, Any] = {}
     for run in runs:
         s = run.scores
@@ -92,4 +96,8 @@ def write_report(runs: Sequence[Run], out: Path, tables: Sequence[Table]) -> dic
         parts += [f"![{p.stem}]({p.name})\n" for p in pngs[1:]]
     (out / REPORT_FILE).write_text("\n".join(parts))
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
-    return {"report": str(out / REPORT_FILE), "files": [REPORT_FILE, "summary.json", *files], "summary": summary}
+    return {
+        "report": str(out / REPORT_FILE),
+        "files": [REPORT_FILE, "summary.json", *files],
+        "summary": summary,
+    }

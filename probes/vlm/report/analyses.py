@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Sequence
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -87,8 +88,12 @@ def per_category(runs: Sequence[Run]) -> Table:
 
 def subcategory_heatmap(runs: Sequence[Run]) -> Table:
     subs = sorted({s for run in runs for s in run.scores["strict"]["sub_category"]})
-    t = Table("subcategory_heatmap", "Models x sub-categories (strict macro accuracy)", ["model", *subs, "overall"],
-              note="Cells: macro accuracy over the sub-category's question ids; empty: no item of it in the run.")
+    t = Table(
+        "subcategory_heatmap",
+        "Models x sub-categories (strict macro accuracy)",
+        ["model", *subs, "overall"],
+        note="Cells: macro accuracy over the sub-category's question ids; empty: no item of it in the run.",
+    )
     matrix = []
     for run in runs:
         acc = run.scores["strict"]["sub_category"]
@@ -105,10 +110,14 @@ def by_model_size(runs: Sequence[Run], edges: Sequence[float] = DEFAULT_SIZE_EDG
     if not sized:
         return not_enough("by_model_size", "Accuracy by model size", cols, "no model size known: add `params_b` "
                           "to the model record or pass --sizes CSV (columns model, params_b)")  # fmt: skip
-    t = Table("by_model_size", "Accuracy by model size (billions of parameters)", cols,
-              note=f"Models without a known size: {sorted(r.label for r in runs if r.params_b is None) or 'none'}.")
+    t = Table(
+        "by_model_size",
+        "Accuracy by model size (billions of parameters)",
+        cols,
+        note=f"Models without a known size: {sorted(r.label for r in runs if r.params_b is None) or 'none'}.",
+    )
     points = []
-    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+    for lo, hi in pairwise(edges):
         members = [r for r in sized if lo <= r.params_b < hi]  # type: ignore[operator]
         if not members:
             continue
@@ -116,7 +125,14 @@ def by_model_size(runs: Sequence[Run], edges: Sequence[float] = DEFAULT_SIZE_EDG
         t.rows.append([f"[{lo:g}, {hi:g})", len(members), float(np.mean(acc)), min(acc), max(acc),
                        "; ".join(r.label for r in members)])  # fmt: skip
     for r in sorted(sized, key=lambda r: r.params_b):  # type: ignore[arg-type, return-value]
-        points.append((r.label, r.params_b, r.scores["strict"]["overall"], r.scores["baselines"]["constant_letter"]["overall"]))
+        points.append(
+            (
+                r.label,
+                r.params_b,
+                r.scores["strict"]["overall"],
+                r.scores["baselines"]["constant_letter"]["overall"],
+            )
+        )
     t.plot = {"points": points}
     return t
 
@@ -150,7 +166,7 @@ def by_meta_bins(runs: Sequence[Run], key: str, name: str, title: str, edges: Se
             if edges is None:
                 bins[(x, f"{v:g}")].append(r)
                 continue
-            for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            for lo, hi in pairwise(edges):
                 if lo <= x < hi:
                     label = f"[1e{lo:g}, 1e{hi:g}) Pa" if log10 else f"[{lo:g}, {hi:g})"
                     bins[(lo, label)].append(r)
@@ -159,7 +175,9 @@ def by_meta_bins(runs: Sequence[Run], key: str, name: str, title: str, edges: Se
             acc, ci, n_seq = _micro_with_ci(rs, n_boot, seed)
             lo_, hi_ = ci or (None, None)
             t.rows.append([run.label, label, len(rs), n_seq, acc, lo_, hi_, _best_letter_share(rs)])
-            plot.setdefault(run.label, []).append((label, acc, lo_ if lo_ is not None else acc, hi_ if hi_ is not None else acc))
+            plot.setdefault(run.label, []).append(
+                (label, acc, lo_ if lo_ is not None else acc, hi_ if hi_ is not None else acc)
+            )
     if not t.rows:
         return not_enough(name, title, cols, f"no base item with meta `{key}` in any run")
     t.plot = plot
@@ -170,7 +188,9 @@ def by_meta_bins(runs: Sequence[Run], key: str, name: str, title: str, edges: Se
 def _base_pair(item: vs.QuestionItem) -> str:
     suffix = "/" + item.variant
     if not item.pair.endswith(suffix):
-        raise ValueError(f"item {item.idx!r}: variant {item.variant!r} but pair {item.pair!r} does not end in {suffix!r}")
+        raise ValueError(
+            f"item {item.idx!r}: variant {item.variant!r} but pair {item.pair!r} does not end in {suffix!r}"
+        )
     return item.pair[: -len(suffix)]
 
 
@@ -224,7 +244,9 @@ def variant_deltas(runs: Sequence[Run], group: str, n_boot: int = 1000, seed: in
             b, v, d, ci, n_seq = paired_delta(pairs, n_boot, seed)
             lo, hi = ci or (None, None)
             t.rows.append([run.label, variant, len(pairs), n_seq, b, v, d, lo, hi])
-            plot.setdefault(run.label, []).append((variant, d, lo if lo is not None else d, hi if hi is not None else d))
+            plot.setdefault(run.label, []).append(
+                (variant, d, lo if lo is not None else d, hi if hi is not None else d)
+            )
         if not found:
             absent.append(variant)
     if not t.rows:
@@ -256,7 +278,11 @@ def correlation(runs: Sequence[Run], benchmarks: dict[str, dict[str, float]]) ->
         for cat in categories:
             pts = []
             for run, row in matched:
-                acc = run.scores["strict"]["overall"] if cat == "overall" else run.scores["strict"]["category"].get(cat)
+                acc = (
+                    run.scores["strict"]["overall"]
+                    if cat == "overall"
+                    else run.scores["strict"]["category"].get(cat)
+                )
                 if acc is not None and bench in row:
                     pts.append((run.label, row[bench], acc))
             scatter.setdefault(bench, {})[cat] = {"points": pts, "r": None}

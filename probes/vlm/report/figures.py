@@ -63,7 +63,14 @@ def size_scatter(plot: dict[str, Any], path: Path) -> Path:
     ax = fig.add_subplot()
     pts = plot["points"]
     ax.scatter([p[1] for p in pts], [p[2] for p in pts], label="model")
-    ax.scatter([p[1] for p in pts], [p[3] for p in pts], marker="_", color="black", s=80, label="best constant letter")
+    ax.scatter(
+        [p[1] for p in pts],
+        [p[3] for p in pts],
+        marker="_",
+        color="black",
+        s=80,
+        label="best constant letter",
+    )
     for label, size, acc, _ in pts:
         ax.annotate(label, (size, acc), fontsize=6, xytext=(3, 3), textcoords="offset points")
     ax.axhline(CHANCE, color="grey", linestyle="--", linewidth=1, label="chance")

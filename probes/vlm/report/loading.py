@@ -10,7 +10,14 @@ from pathlib import Path
 from typing import Any
 
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE
-from probes.vlm.scoring import ItemResult, asked_results, item_results, manifest_set_dir, read_manifest, score_results
+from probes.vlm.scoring import (
+    ItemResult,
+    asked_results,
+    item_results,
+    manifest_set_dir,
+    read_manifest,
+    score_results,
+)
 
 SIZE_KEYS_B: tuple[str, ...] = ("params_b", "size_b", "num_params_b", "parameters_b")
 """Keys of a manifest's ``model`` record read as the model size in billions of parameters."""
@@ -49,9 +56,13 @@ def find_run_dirs(paths: list[Path]) -> list[Path]:
         if (p / MANIFEST_FILE).is_file() and (p / PREDICTIONS_FILE).is_file():
             found.append(p)
         elif p.is_dir():
-            found += sorted(m.parent for m in p.rglob(MANIFEST_FILE) if (m.parent / PREDICTIONS_FILE).is_file())
+            found += sorted(
+                m.parent for m in p.rglob(MANIFEST_FILE) if (m.parent / PREDICTIONS_FILE).is_file()
+            )
         else:
-            raise FileNotFoundError(f"{p}: neither a run directory ({MANIFEST_FILE} + {PREDICTIONS_FILE}) nor a folder")
+            raise FileNotFoundError(
+                f"{p}: neither a run directory ({MANIFEST_FILE} + {PREDICTIONS_FILE}) nor a folder"
+            )
     if not found:
         raise FileNotFoundError(f"no run directories under {[str(p) for p in paths]}")
     return list(dict.fromkeys(found))

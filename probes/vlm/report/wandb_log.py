@@ -28,7 +28,13 @@ def log_report(tables: Sequence[Table], summary: dict[str, Any], out: Path, proj
             run.summary[f"{label}/constant_letter"] = s["baselines"]["constant_letter"]
         for t in tables:
             if t.rows:
-                run.log({f"table/{t.name}": wandb.Table(columns=t.columns, data=[[_cell(v) for v in r] for r in t.rows])})
+                run.log(
+                    {
+                        f"table/{t.name}": wandb.Table(
+                            columns=t.columns, data=[[_cell(v) for v in r] for r in t.rows]
+                        )
+                    }
+                )
         for png in sorted(out.glob("*.png")):
             run.log({f"figure/{png.stem}": wandb.Image(str(png))})
         return str(run.dir)
