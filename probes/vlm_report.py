@@ -57,8 +57,14 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, ValueError, KeyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    tables = build_tables(runs, benchmarks, args.n_boot, args.seed, _edges(args.size_bins, "--size-bins"),
-                          _edges(args.young_bins, "--young-bins"))  # fmt: skip
+    tables = build_tables(
+        runs,
+        benchmarks,
+        args.n_boot,
+        args.seed,
+        _edges(args.size_bins, "--size-bins"),
+        _edges(args.young_bins, "--young-bins"),
+    )
     written = write_report(runs, args.out, tables)
     if args.wandb_project:
         from probes.vlm.report.wandb_log import log_report

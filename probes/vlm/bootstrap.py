@@ -88,10 +88,12 @@ def macro_levels(table: MacroTable, weights: np.ndarray) -> dict[str, np.ndarray
 def point_estimate(table: MacroTable) -> dict[str, Any]:
     """The macro accuracies of the table itself (every sequence once), as plain floats."""
     lv = macro_levels(table, np.ones((1, len(table.sequences))))
-    return {"overall": float(lv["overall"][0]),
-            "category": dict(zip(table.categories, map(float, lv["category"][0]), strict=True)),
-            "sub_category": dict(zip(table.sub_categories, map(float, lv["sub_category"][0]), strict=True)),
-            "question_id": dict(zip(table.question_ids, map(float, lv["question_id"][0]), strict=True))}  # fmt: skip
+    return {
+        "overall": float(lv["overall"][0]),
+        "category": dict(zip(table.categories, map(float, lv["category"][0]), strict=True)),
+        "sub_category": dict(zip(table.sub_categories, map(float, lv["sub_category"][0]), strict=True)),
+        "question_id": dict(zip(table.question_ids, map(float, lv["question_id"][0]), strict=True)),
+    }
 
 
 def bootstrap_ci(table: MacroTable, n_boot: int = 1000, seed: int = 0, level: float = 0.95) -> dict[str, Any]:
@@ -117,7 +119,14 @@ def bootstrap_ci(table: MacroTable, n_boot: int = 1000, seed: int = 0, level: fl
 
     overall = np.concatenate(chunks["overall"])
     cat, sub = np.concatenate(chunks["category"]), np.concatenate(chunks["sub_category"])
-    return {"level": level, "n_boot": n_boot, "seed": seed, "resampled": "sequence_id", "n_sequences": n,
-            "overall": interval(overall), "overall_se": float(np.nanstd(overall, ddof=1)) if n_boot > 1 else None,
-            "category": {c: interval(cat[:, k]) for k, c in enumerate(table.categories)},
-            "sub_category": {s: interval(sub[:, k]) for k, s in enumerate(table.sub_categories)}}  # fmt: skip
+    return {
+        "level": level,
+        "n_boot": n_boot,
+        "seed": seed,
+        "resampled": "sequence_id",
+        "n_sequences": n,
+        "overall": interval(overall),
+        "overall_se": float(np.nanstd(overall, ddof=1)) if n_boot > 1 else None,
+        "category": {c: interval(cat[:, k]) for k, c in enumerate(table.categories)},
+        "sub_category": {s: interval(sub[:, k]) for k, s in enumerate(table.sub_categories)},
+    }

@@ -42,8 +42,13 @@ log = logging.getLogger(__name__)
 RETRY_STATUSES: frozenset[int] = frozenset({408, 429, 500, 502, 503, 504})
 """HTTP statuses retried (any other 5xx is retried too); every other 4xx fails at once."""
 BODY_EXCERPT_CHARS = 300
-_MIME = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".webp": "image/webp",
-         ".gif": "image/gif"}  # fmt: skip
+_MIME = {
+    ".png": "image/png",
+    ".jpg": "image/jpeg",
+    ".jpeg": "image/jpeg",
+    ".webp": "image/webp",
+    ".gif": "image/gif",
+}
 
 
 class ServerError(RuntimeError):
@@ -84,10 +89,14 @@ class ServerConfig:
     """Merged into every request body (server-specific options, e.g. ``top_k``)."""
 
     def __post_init__(self) -> None:
-        checks = [("concurrency", self.concurrency >= 1, ">= 1"), ("timeout_s", self.timeout_s > 0, "> 0"),
-                  ("max_retries", self.max_retries >= 0, ">= 0"), ("backoff_s", self.backoff_s >= 0, ">= 0"),
-                  ("max_tokens", self.max_tokens >= 1, ">= 1"),
-                  ("base_url", self.base_url.startswith(("http://", "https://")), "an http(s):// URL")]  # fmt: skip
+        checks = [
+            ("concurrency", self.concurrency >= 1, ">= 1"),
+            ("timeout_s", self.timeout_s > 0, "> 0"),
+            ("max_retries", self.max_retries >= 0, ">= 0"),
+            ("backoff_s", self.backoff_s >= 0, ">= 0"),
+            ("max_tokens", self.max_tokens >= 1, ">= 1"),
+            ("base_url", self.base_url.startswith(("http://", "https://")), "an http(s):// URL"),
+        ]
         for key, ok, allowed in checks:
             if not ok:
                 raise ValueError(f"openai_server config: {key}={getattr(self, key)!r}, must be {allowed}")
@@ -139,8 +148,9 @@ def image_data_url(path: Path) -> str:
 
 def chat_messages(prompt: Prompt, system_prompt: str | None = None) -> list[dict[str, Any]]:
     """The chat messages of one prompt: (system,) user = [images..., text]."""
-    content: list[dict[str, Any]] = [{"type": "image_url", "image_url": {"url": image_data_url(Path(p))}}
-                                     for p in prompt.images]  # fmt: skip
+    content: list[dict[str, Any]] = [
+        {"type": "image_url", "image_url": {"url": image_data_url(Path(p))}} for p in prompt.images
+    ]
     content.append({"type": "text", "text": prompt.text})
     messages: list[dict[str, Any]] = [{"role": "system", "content": system_prompt}] if system_prompt else []
     return [*messages, {"role": "user", "content": content}]
@@ -173,10 +183,20 @@ class OpenAIServerAnswerer:
 
     def describe(self) -> dict[str, Any]:
         c = self.config
-        return {"kind": "openai_server", "id": c.model, "revision": None, "dtype": None, "weights": "served",
-                "base_url": c.base_url, "api_key_env": c.api_key_env, "temperature": c.temperature,
-                "max_tokens": c.max_tokens, "system_prompt": c.system_prompt, "extra_body": dict(c.extra_body),
-                "concurrency": c.concurrency}  # fmt: skip
+        return {
+            "kind": "openai_server",
+            "id": c.model,
+            "revision": None,
+            "dtype": None,
+            "weights": "served",
+            "base_url": c.base_url,
+            "api_key_env": c.api_key_env,
+            "temperature": c.temperature,
+            "max_tokens": c.max_tokens,
+            "system_prompt": c.system_prompt,
+            "extra_body": dict(c.extra_body),
+            "concurrency": c.concurrency,
+        }
 
     # -- requests ---------------------------------------------------------------------------------------
     def _headers(self) -> dict[str, str]:
@@ -245,8 +265,12 @@ class OpenAIServerAnswerer:
                         text = _reply_text(reply)
                     except (ValueError, KeyError, IndexError, TypeError) as e:
                         self._count(failures=1)
-                        raise ServerError(f"POST {self.url}: HTTP 200 but not a chat completion ({e!r}): "
-                                          f"{_excerpt(r.text)}", status, attempt + 1) from None  # fmt: skip
+                        raise ServerError(
+                            f"POST {self.url}: HTTP 200 but not a chat completion ({e!r}): "
+                            f"{_excerpt(r.text)}",
+                            status,
+                            attempt + 1,
+                        ) from None
                     usage = reply.get("usage") or {}
                     return (
                         text,
@@ -263,12 +287,23 @@ class OpenAIServerAnswerer:
                 retry_after = r.headers.get("retry-after")
             if attempt < c.max_retries:
                 wait = self._backoff_s(attempt, rng, retry_after)
-                log.warning("POST %s item %s: %s; retry %d/%d in %.2f s", self.url, prompt.idx, last, attempt + 1,
-                            c.max_retries, wait)  # fmt: skip
+                log.warning(
+                    "POST %s item %s: %s; retry %d/%d in %.2f s",
+                    self.url,
+                    prompt.idx,
+                    last,
+                    attempt + 1,
+                    c.max_retries,
+                    wait,
+                )
                 time.sleep(wait)
         self._count(failures=1)
-        raise ServerError(f"POST {self.url} (model {c.model!r}) item {prompt.idx}: gave up after "
-                          f"{c.max_retries + 1} attempts; last: {last}", status, c.max_retries + 1)  # fmt: skip
+        raise ServerError(
+            f"POST {self.url} (model {c.model!r}) item {prompt.idx}: gave up after "
+            f"{c.max_retries + 1} attempts; last: {last}",
+            status,
+            c.max_retries + 1,
+        )
 
     def answer(self, prompts: list[Prompt]) -> list[Generation]:
         """One generation per prompt, in order; raises :class:`ServerError` if any request fails for good."""

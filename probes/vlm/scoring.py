@@ -100,8 +100,10 @@ def manifest_set_dir(manifest: dict[str, Any], run_dir: Path | str = "?") -> Pat
     for cand in (root, vs.split_dir(root, str(manifest.get("split", "")))):
         if (cand / vs.QUESTIONS_FILE).is_file():
             return cand
-    raise FileNotFoundError(f"{run_dir}/{MANIFEST_FILE}: no {vs.QUESTIONS_FILE} in vqa_dir={str(root)!r} nor in "
-                            f"its split {manifest.get('split')!r}; pass the set directory explicitly")  # fmt: skip
+    raise FileNotFoundError(
+        f"{run_dir}/{MANIFEST_FILE}: no {vs.QUESTIONS_FILE} in vqa_dir={str(root)!r} nor in "
+        f"its split {manifest.get('split')!r}; pass the set directory explicitly"
+    )
 
 
 def asked_items(
@@ -137,8 +139,10 @@ def check_set(manifest: dict[str, Any], set_dir: Path, run_dir: Path) -> None:
     want = manifest.get("question_set_sha256")
     got = file_sha256(Path(set_dir) / vs.QUESTIONS_FILE)
     if want and want != got:
-        raise ValueError(f"{run_dir}/{MANIFEST_FILE}: question_set_sha256={want[:12]}... but "
-                         f"{set_dir}/{vs.QUESTIONS_FILE} has {got[:12]}...: predictions of another set")  # fmt: skip
+        raise ValueError(
+            f"{run_dir}/{MANIFEST_FILE}: question_set_sha256={want[:12]}... but "
+            f"{set_dir}/{vs.QUESTIONS_FILE} has {got[:12]}...: predictions of another set"
+        )
 
 
 def item_results(run_dir: Path | str, set_dir: Path | str, check: bool = True) -> list[ItemResult]:
@@ -151,8 +155,10 @@ def item_results(run_dir: Path | str, set_dir: Path | str, check: bool = True) -
     known = {it.idx for it in items}
     unknown = sorted({idx for idx, _ in preds if idx not in known})
     if unknown:
-        raise ValueError(f"{run_dir}/{PREDICTIONS_FILE}: {len(unknown)} idx not in {set_dir}/{vs.QUESTIONS_FILE}, "
-                         f"e.g. {unknown[:3]}")  # fmt: skip
+        raise ValueError(
+            f"{run_dir}/{PREDICTIONS_FILE}: {len(unknown)} idx not in {set_dir}/{vs.QUESTIONS_FILE}, "
+            f"e.g. {unknown[:3]}"
+        )
     circular = any(rot != 0 for _, rot in preds)
     out = []
     for it in items:
@@ -165,25 +171,49 @@ def item_results(run_dir: Path | str, set_dir: Path | str, check: bool = True) -
             rots = [preds.get((it.idx, r)) for r in ROTATIONS]
             cs = all(p is not None and p.letter == truth for p in rots)
             cl = all(p is not None and p.letter_lenient == truth for p in rots)
-        out.append(ItemResult(item=it, answer=truth, predicted=p0 is not None,
-                              strict=p0 is not None and p0.letter == truth,
-                              lenient=p0 is not None and p0.letter_lenient == truth,
-                              circular_strict=cs, circular_lenient=cl, letter=None if p0 is None else p0.letter))  # fmt: skip
+        out.append(
+            ItemResult(
+                item=it,
+                answer=truth,
+                predicted=p0 is not None,
+                strict=p0 is not None and p0.letter == truth,
+                lenient=p0 is not None and p0.letter_lenient == truth,
+                circular_strict=cs,
+                circular_lenient=cl,
+                letter=None if p0 is None else p0.letter,
+            )
+        )
     return out
 
 
 def _records(results: Iterable[ItemResult], key: str) -> list[dict[str, Any]]:
-    return [{"question_id": r.item.question_id, "sub_category": r.item.sub_category, "category": r.item.category,
-             "correct": bool(getattr(r, key))} for r in results]  # fmt: skip
+    return [
+        {
+            "question_id": r.item.question_id,
+            "sub_category": r.item.sub_category,
+            "category": r.item.category,
+            "correct": bool(getattr(r, key)),
+        }
+        for r in results
+    ]
 
 
-def macro_score(results: Sequence[ItemResult], key: str = "strict", n_boot: int = 1000, seed: int = 0,
-                level: float = 0.95) -> dict[str, Any]:  # fmt: skip
+def macro_score(
+    results: Sequence[ItemResult], key: str = "strict", n_boot: int = 1000, seed: int = 0, level: float = 0.95
+) -> dict[str, Any]:
     """Macro accuracy of ``key`` (``strict``, ``lenient``, ``circular_strict``, ``circular_lenient``) with
     its sequence-bootstrap interval (``ci``) and the item-level (micro) accuracy; n items / sequences."""
     m = macro_accuracy(_records(results, key))
-    table = build_table((r.item.sequence_id, r.item.question_id, r.item.sub_category, r.item.category,
-                         float(bool(getattr(r, key)))) for r in results)  # fmt: skip
+    table = build_table(
+        (
+            r.item.sequence_id,
+            r.item.question_id,
+            r.item.sub_category,
+            r.item.category,
+            float(bool(getattr(r, key))),
+        )
+        for r in results
+    )
     m["micro"] = sum(bool(getattr(r, key)) for r in results) / len(results)
     m["n_items"], m["n_sequences"] = len(results), len(table.sequences)
     m["ci"] = bootstrap_ci(table, n_boot=n_boot, seed=seed, level=level) if n_boot else None
@@ -197,16 +227,28 @@ def constant_letter_baseline(results: Sequence[ItemResult]) -> dict[str, Any]:
     n = len(results)
     per_letter, per_category = {}, {}
     for letter in vs.LETTERS:
-        t = build_table((r.item.sequence_id, r.item.question_id, r.item.sub_category, r.item.category,
-                         float(r.answer == letter)) for r in results)  # fmt: skip
+        t = build_table(
+            (
+                r.item.sequence_id,
+                r.item.question_id,
+                r.item.sub_category,
+                r.item.category,
+                float(r.answer == letter),
+            )
+            for r in results
+        )
         pe = point_estimate(t)
         per_letter[letter], per_category[letter] = pe["overall"], pe["category"]
     best = max(vs.LETTERS, key=lambda k: (per_letter[k], -vs.LETTERS.index(k)))
     category_best = {c: max(per_category[k][c] for k in vs.LETTERS) for c in per_category[best]}
-    return {"letter": best, "overall": per_letter[best], "macro_per_letter": per_letter,
-            "category_best": category_best,
-            "letter_share": {k: shares.get(k, 0) / n for k in vs.LETTERS},
-            "best_share": max(shares.get(k, 0) for k in vs.LETTERS) / n}  # fmt: skip
+    return {
+        "letter": best,
+        "overall": per_letter[best],
+        "macro_per_letter": per_letter,
+        "category_best": category_best,
+        "letter_share": {k: shares.get(k, 0) / n for k in vs.LETTERS},
+        "best_share": max(shares.get(k, 0) for k in vs.LETTERS) / n,
+    }
 
 
 def text_prior_baseline(results: Sequence[ItemResult], max_items: int = PRIOR_MAX_ITEMS) -> dict[str, Any]:
@@ -217,8 +259,16 @@ def text_prior_baseline(results: Sequence[ItemResult], max_items: int = PRIOR_MA
     items = [r.item for r in results]
     prior = TextPrior(items, {r.item.idx: vs.AnswerRecord(r.item.idx, r.answer, None, "") for r in results})
     choices = [prior.choose(r.item) for r in results]
-    t = build_table((r.item.sequence_id, r.item.question_id, r.item.sub_category, r.item.category,
-                     CHANCE if c is None else float(vs.LETTERS[c] == r.answer)) for r, c in zip(results, choices))  # fmt: skip
+    t = build_table(
+        (
+            r.item.sequence_id,
+            r.item.question_id,
+            r.item.sub_category,
+            r.item.category,
+            CHANCE if c is None else float(vs.LETTERS[c] == r.answer),
+        )
+        for r, c in zip(results, choices)
+    )
     pe = point_estimate(t)
     return {
         "overall": pe["overall"],
@@ -248,9 +298,15 @@ def asked_results(
     return [r for r in results if r.item.idx in asked], left
 
 
-def score_results(results: Sequence[ItemResult], not_asked: dict[str, int] | None = None,
-                  modes: Sequence[str] | None = None, n_boot: int = 1000,
-                  seed: int = 0, level: float = 0.95, max_prior_items: int = PRIOR_MAX_ITEMS) -> dict[str, Any]:  # fmt: skip
+def score_results(
+    results: Sequence[ItemResult],
+    not_asked: dict[str, int] | None = None,
+    modes: Sequence[str] | None = None,
+    n_boot: int = 1000,
+    seed: int = 0,
+    level: float = 0.95,
+    max_prior_items: int = PRIOR_MAX_ITEMS,
+) -> dict[str, Any]:
     """The scores dictionary of :func:`score_run` from joined results (module docstring)."""
     modes = tuple(modes) if modes else tuple(sorted({r.item.mode for r in results}))
     in_scope = _scope(results, modes, None)
@@ -262,39 +318,57 @@ def score_results(results: Sequence[ItemResult], not_asked: dict[str, int] | Non
         )
     circular = any(r.circular_strict is not None for r in results)
     out: dict[str, Any] = {
-        "protocol": {"variant": vs.BASE_VARIANT, "modes": list(modes), "extraction": "strict = the paper's letter "
-                     "rule; lenient = strict, else the option text matched", "missing_prediction": "wrong",
-                     "ci_level": level, "n_boot": n_boot, "seed": seed, "resampled": "sequence_id",
-                     "circular": circular},
-        "coverage": {"items": len(head), "predicted": sum(r.predicted for r in head),
-                     "missing": sum(not r.predicted for r in head),
-                     "unextracted_strict": sum(r.predicted and r.letter is None for r in head),
-                     "not_asked": dict(not_asked or {})},
+        "protocol": {
+            "variant": vs.BASE_VARIANT,
+            "modes": list(modes),
+            "extraction": "strict = the paper's letter rule; lenient = strict, else the option text matched",
+            "missing_prediction": "wrong",
+            "ci_level": level,
+            "n_boot": n_boot,
+            "seed": seed,
+            "resampled": "sequence_id",
+            "circular": circular,
+        },
+        "coverage": {
+            "items": len(head),
+            "predicted": sum(r.predicted for r in head),
+            "missing": sum(not r.predicted for r in head),
+            "unextracted_strict": sum(r.predicted and r.letter is None for r in head),
+            "not_asked": dict(not_asked or {}),
+        },
         "strict": macro_score(head, "strict", n_boot, seed, level),
         "lenient": macro_score(head, "lenient", n_boot, seed, level),
         "circular": None,
         "baselines": baselines(head, max_prior_items),
-    }  # fmt: skip
+    }
     if circular:
-        out["circular"] = {"strict": macro_score(head, "circular_strict", n_boot, seed, level),
-                           "lenient": macro_score(head, "circular_lenient", n_boot, seed, level),
-                           "chance": CHANCE**4}  # fmt: skip
+        out["circular"] = {
+            "strict": macro_score(head, "circular_strict", n_boot, seed, level),
+            "lenient": macro_score(head, "circular_lenient", n_boot, seed, level),
+            "chance": CHANCE**4,
+        }
     out["by_mode"] = {}
     for mode in modes:
         sub = [r for r in head if r.item.mode == mode]
         if sub:
-            out["by_mode"][mode] = {"n_items": len(sub), "strict": macro_accuracy(_records(sub, "strict"))["overall"],
-                                    "lenient": macro_accuracy(_records(sub, "lenient"))["overall"]}  # fmt: skip
+            out["by_mode"][mode] = {
+                "n_items": len(sub),
+                "strict": macro_accuracy(_records(sub, "strict"))["overall"],
+                "lenient": macro_accuracy(_records(sub, "lenient"))["overall"],
+            }
     out["variants"] = {}
     by_variant: dict[str, list[ItemResult]] = defaultdict(list)
     for r in analysed:
         if r.item.variant != vs.BASE_VARIANT:
             by_variant[r.item.variant].append(r)
     for variant, rs in sorted(by_variant.items()):
-        out["variants"][variant] = {"n_items": len(rs), "predicted": sum(r.predicted for r in rs),
-                                    "strict": macro_score(rs, "strict", n_boot, seed, level),
-                                    "lenient": macro_accuracy(_records(rs, "lenient"))["overall"],
-                                    "constant_letter": constant_letter_baseline(rs)["overall"]}  # fmt: skip
+        out["variants"][variant] = {
+            "n_items": len(rs),
+            "predicted": sum(r.predicted for r in rs),
+            "strict": macro_score(rs, "strict", n_boot, seed, level),
+            "lenient": macro_accuracy(_records(rs, "lenient"))["overall"],
+            "constant_letter": constant_letter_baseline(rs)["overall"],
+        }
     apart = [
         r
         for r in in_scope
@@ -302,13 +376,21 @@ def score_results(results: Sequence[ItemResult], not_asked: dict[str, int] | Non
     ]
     out["excluded_from_analysis"] = (
         {"n_items": len(apart), "question_id": macro_accuracy(_records(apart, "strict"))["question_id"]}
-        if apart else {"n_items": 0, "question_id": {}}
-    )  # fmt: skip
+        if apart
+        else {"n_items": 0, "question_id": {}}
+    )
     return out
 
 
-def score_run(run_dir: Path | str, set_dir: Path | str | None = None, n_boot: int = 1000, seed: int = 0,
-              level: float = 0.95, modes: Sequence[str] | None = None, write: bool = True) -> dict[str, Any]:  # fmt: skip
+def score_run(
+    run_dir: Path | str,
+    set_dir: Path | str | None = None,
+    n_boot: int = 1000,
+    seed: int = 0,
+    level: float = 0.95,
+    modes: Sequence[str] | None = None,
+    write: bool = True,
+) -> dict[str, Any]:
     """Scores of one run directory (module docstring); written to ``<run_dir>/scores.json`` when ``write``.
     ``set_dir`` defaults to the manifest's (:func:`manifest_set_dir`); the items scored are those the answerer
     was asked (:func:`asked_items`), further restricted to ``modes`` when given."""
@@ -319,8 +401,14 @@ def score_run(run_dir: Path | str, set_dir: Path | str | None = None, n_boot: in
     scores = score_results(
         *asked_results(results, manifest), modes=modes, n_boot=n_boot, seed=seed, level=level
     )
-    scores = {"run_dir": str(run_dir), "set_dir": str(set_dir), "answerer": manifest.get("answerer"),
-              "model": manifest.get("model"), "question_set_sha256": manifest.get("question_set_sha256"), **scores}  # fmt: skip
+    scores = {
+        "run_dir": str(run_dir),
+        "set_dir": str(set_dir),
+        "answerer": manifest.get("answerer"),
+        "model": manifest.get("model"),
+        "question_set_sha256": manifest.get("question_set_sha256"),
+        **scores,
+    }
     if write:
         tmp = run_dir / (SCORES_FILE + ".tmp")
         tmp.write_text(json.dumps(scores, indent=2, sort_keys=True))

@@ -107,8 +107,12 @@ def _expected_keys(set_dir: Path, manifest: dict[str, Any]) -> list[tuple[str, i
     return [(it.idx, r) for it in items if it.idx in asked for r in rotations]
 
 
-def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Path | str | None = None,
-               allow_incomplete: bool = False) -> dict[str, Any]:  # fmt: skip
+def merge_runs(
+    run_dirs: Sequence[Path | str],
+    out_dir: Path | str,
+    set_dir: Path | str | None = None,
+    allow_incomplete: bool = False,
+) -> dict[str, Any]:
     """Merge the run directories of the shards of one run into ``out_dir`` (``manifest.json`` without the
     shard keys, plus ``extra["merged_from"]``; ``predictions.jsonl`` in set order). Returns a summary
     (``shards``, ``predictions``, ``missing``). Raises on disagreeing manifests, duplicate predictions, a
@@ -123,8 +127,10 @@ def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Pat
         diff = sorted(k for k in set(ref) | set(ident) if ref.get(k) != ident.get(k))
         if diff:
             k = diff[0]
-            raise ValueError(f"merge_runs: {d}/{MANIFEST_FILE} disagrees with {dirs[0]}/{MANIFEST_FILE} on {diff}: "
-                             f"{k}={ident.get(k)!r} vs {ref.get(k)!r}")  # fmt: skip
+            raise ValueError(
+                f"merge_runs: {d}/{MANIFEST_FILE} disagrees with {dirs[0]}/{MANIFEST_FILE} on {diff}: "
+                f"{k}={ident.get(k)!r} vs {ref.get(k)!r}"
+            )
     shard_ids = [_shard_id(m) for m in manifests]
     if any(n is not None for _, n in shard_ids):
         nums = {n for _, n in shard_ids}
@@ -150,8 +156,10 @@ def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Pat
             rec = PredictionRecord.from_dict(obj)
             key = (rec.idx, int(rec.rotation))
             if key in seen:
-                raise ValueError(f"merge_runs: idx={rec.idx!r} rotation={rec.rotation} in both {seen[key]} and "
-                                 f"{path}:{line}")  # fmt: skip
+                raise ValueError(
+                    f"merge_runs: idx={rec.idx!r} rotation={rec.rotation} in both {seen[key]} and "
+                    f"{path}:{line}"
+                )
             seen[key], records[key] = path, rec
     m0 = manifests[0]
     set_dir = Path(set_dir) if set_dir is not None else manifest_set_dir(m0, dirs[0])
@@ -159,25 +167,48 @@ def merge_runs(run_dirs: Sequence[Path | str], out_dir: Path | str, set_dir: Pat
     order = {key: k for k, key in enumerate(expected)}
     extra_keys = sorted(set(records) - set(order))
     if extra_keys:
-        raise ValueError(f"merge_runs: {len(extra_keys)} predictions not in {set_dir}/{vs.QUESTIONS_FILE} "
-                         f"(modes {(m0.get('extra') or {}).get('modes')}), e.g. {extra_keys[:3]}")  # fmt: skip
+        raise ValueError(
+            f"merge_runs: {len(extra_keys)} predictions not in {set_dir}/{vs.QUESTIONS_FILE} "
+            f"(modes {(m0.get('extra') or {}).get('modes')}), e.g. {extra_keys[:3]}"
+        )
     missing = [key for key in expected if key not in records]
     if missing and not allow_incomplete:
-        raise ValueError(f"merge_runs: the union of {len(dirs)} shard(s) misses {len(missing)} of {len(expected)} "
-                         f"(idx, rotation), e.g. {missing[:3]}; rerun those shards or pass allow_incomplete")  # fmt: skip
+        raise ValueError(
+            f"merge_runs: the union of {len(dirs)} shard(s) misses {len(missing)} of {len(expected)} "
+            f"(idx, rotation), e.g. {missing[:3]}; rerun those shards or pass allow_incomplete"
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if (out / PREDICTIONS_FILE).exists():
         raise FileExistsError(f"merge_runs: {out / PREDICTIONS_FILE} exists; merge into a new directory")
-    merged = {**m0, "extra": {**ref["extra"], "merged_from": [
-        {"run_dir": str(d), **{k: (m.get("extra") or {}).get(k) for k in SHARD_KEYS + MERGE_VOLATILE_KEYS
-                               if k in (m.get("extra") or {})}} for d, m in zip(dirs, manifests, strict=True)]}}  # fmt: skip
+    merged = {
+        **m0,
+        "extra": {
+            **ref["extra"],
+            "merged_from": [
+                {
+                    "run_dir": str(d),
+                    **{
+                        k: (m.get("extra") or {}).get(k)
+                        for k in SHARD_KEYS + MERGE_VOLATILE_KEYS
+                        if k in (m.get("extra") or {})
+                    },
+                }
+                for d, m in zip(dirs, manifests, strict=True)
+            ],
+        },
+    }
     vs.write_jsonl(
         out / PREDICTIONS_FILE, (records[key].to_json() for key in sorted(records, key=order.__getitem__))
     )
     (out / MANIFEST_FILE).write_text(json.dumps(merged, indent=2, sort_keys=True))
-    return {"shards": len(dirs), "predictions": len(records), "expected": len(expected), "missing": len(missing),
-            "out_dir": str(out)}  # fmt: skip
+    return {
+        "shards": len(dirs),
+        "predictions": len(records),
+        "expected": len(expected),
+        "missing": len(missing),
+        "out_dir": str(out),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -30,8 +30,12 @@ def server(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., str]]:
     def start(*flags: str, env: dict[str, str] | None = None) -> str:
         import os
 
-        proc = subprocess.Popen([sys.executable, str(SERVER), "--port", "0", *flags], stdout=subprocess.PIPE,
-                                text=True, env={**os.environ, **(env or {})})  # fmt: skip
+        proc = subprocess.Popen(
+            [sys.executable, str(SERVER), "--port", "0", *flags],
+            stdout=subprocess.PIPE,
+            text=True,
+            env={**os.environ, **(env or {})},
+        )
         procs.append(proc)
         assert proc.stdout is not None
         line = proc.stdout.readline()
@@ -57,8 +61,14 @@ def _prompts(tmp_path: Path, letters: str, images_per_item: int = 1) -> list[Pro
             path = tmp_path / f"item{k}_{j}.png"
             Image.new("RGB", (8 + j, 6), (RED[letter] if j == 0 else 3, 10 * k % 256, 7)).save(path)
             paths.append(path)
-        prompts.append(Prompt(idx=f"p{k}", images=tuple(paths), text=f"Question {k}?\nA. a\nB. b\nC. c\nD. d",
-                              options=("a", "b", "c", "d")))  # fmt: skip
+        prompts.append(
+            Prompt(
+                idx=f"p{k}",
+                images=tuple(paths),
+                text=f"Question {k}?\nA. a\nB. b\nC. c\nD. d",
+                options=("a", "b", "c", "d"),
+            )
+        )
     return prompts
 
 
@@ -146,8 +156,16 @@ def test_api_key_from_the_environment_is_sent_and_never_shown(server, tmp_path: 
     secret = "sk-test-0123456789"
     url = server("--api-key-env", "STUB_KEY", env={"STUB_KEY": secret})
     monkeypatch.setenv("NEWTPHYS_TEST_KEY", secret)
-    answerer = from_config({"kind": "openai_server", "name": "openai_server", "base_url": url, "model": "stub",
-                            "api_key_env": "NEWTPHYS_TEST_KEY", "concurrency": 1})  # fmt: skip
+    answerer = from_config(
+        {
+            "kind": "openai_server",
+            "name": "openai_server",
+            "base_url": url,
+            "model": "stub",
+            "api_key_env": "NEWTPHYS_TEST_KEY",
+            "concurrency": 1,
+        }
+    )
     assert answerer.answer(_prompts(tmp_path, "B"))[0].text == "The answer is B."
     assert secret not in json.dumps(answerer.describe()) and answerer.name == "openai:stub"
     monkeypatch.setenv("NEWTPHYS_TEST_KEY", "wrong-key")

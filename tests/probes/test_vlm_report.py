@@ -47,11 +47,27 @@ def runs_dir(tmp_path: Path) -> Path:
             ),
         ]
         if j < 2:
-            rows.append(item(f"k{j}/cf_gravity/single", f"s{j}", "CF_" + SPEED, variant="cf_gravity",
-                             pair=f"k{j}/cf_gravity", meta=meta))  # fmt: skip
+            rows.append(
+                item(
+                    f"k{j}/cf_gravity/single",
+                    f"s{j}",
+                    "CF_" + SPEED,
+                    variant="cf_gravity",
+                    pair=f"k{j}/cf_gravity",
+                    meta=meta,
+                )
+            )
         if j < 4:
-            rows.append(item(f"k{j}/cue_mass_exact/single", f"s{j}", SPEED, variant="cue_mass_exact",
-                             pair=f"k{j}/cue_mass_exact", meta=meta))  # fmt: skip
+            rows.append(
+                item(
+                    f"k{j}/cue_mass_exact/single",
+                    f"s{j}",
+                    SPEED,
+                    variant="cue_mass_exact",
+                    pair=f"k{j}/cue_mass_exact",
+                    meta=meta,
+                )
+            )
         for it in rows:
             items.append(it)
             answers[it.idx] = ans
@@ -62,8 +78,12 @@ def runs_dir(tmp_path: Path) -> Path:
         preds = {}
         for it in items:
             j = int(it.pair.split("/")[0][1:])
-            right = {"base": it.pair.startswith("k") or j < 2 * (k + 1), "roi_masked": False, "cf_gravity": False,
-                     "cue_mass_exact": True}[it.variant]  # fmt: skip
+            right = {
+                "base": it.pair.startswith("k") or j < 2 * (k + 1),
+                "roi_masked": False,
+                "cf_gravity": False,
+                "cue_mass_exact": True,
+            }[it.variant]
             preds[(it.idx, 0)] = answers[it.idx] if right else _wrong(answers[it.idx])
         model = {"id": f"org/M{k}", "weights": "pretrained", **({"params_b": 0.5} if k == 0 else {})}
         write_run(tmp_path / "runs" / f"M{k}", set_dir, preds, answerer=f"M{k}", model=model)
@@ -123,19 +143,49 @@ def test_report_tables_by_hand(runs_dir: Path) -> None:
 def test_cli_writes_markdown_csv_png_without_pyplot(runs_dir: Path) -> None:
     out = runs_dir / "report"
     # the raw rcParams value: reading rcParams['backend'] would itself resolve the backend through pyplot
-    code = ("import sys, matplotlib; raw = lambda: dict.__getitem__(matplotlib.rcParams, 'backend'); before = raw();"
-            "from probes.vlm_report import main; rc = main(sys.argv[1:]);"
-            "print('PYPLOT', 'matplotlib.pyplot' in sys.modules, raw() == before); sys.exit(rc)")  # fmt: skip
-    proc = subprocess.run([sys.executable, "-c", code, str(runs_dir / "runs"), "--out", str(out), "--n-boot", "50",
-                           "--sizes", str(runs_dir / "sizes.csv"), "--benchmarks", str(runs_dir / "bench.csv")],
-                          capture_output=True, text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
-                          timeout=120, check=False)  # fmt: skip
+    code = (
+        "import sys, matplotlib; raw = lambda: dict.__getitem__(matplotlib.rcParams, 'backend'); before = raw();"
+        "from probes.vlm_report import main; rc = main(sys.argv[1:]);"
+        "print('PYPLOT', 'matplotlib.pyplot' in sys.modules, raw() == before); sys.exit(rc)"
+    )
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            code,
+            str(runs_dir / "runs"),
+            "--out",
+            str(out),
+            "--n-boot",
+            "50",
+            "--sizes",
+            str(runs_dir / "sizes.csv"),
+            "--benchmarks",
+            str(runs_dir / "bench.csv"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        timeout=120,
+        check=False,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "PYPLOT False True" in proc.stdout
     md = (out / "report.md").read_text()
     assert "| M1 | 16 | 16/16 | 0.750 |" in md and "not enough items" in md
-    for name in ("per_category", "subcategory_heatmap", "by_model_size", "by_young_modulus", "by_num_objects",
-                 "delta_masked", "delta_counterfactual", "delta_cue", "correlation_commonsense", "correlation_other"):  # fmt: skip
+    for name in (
+        "per_category",
+        "subcategory_heatmap",
+        "by_model_size",
+        "by_young_modulus",
+        "by_num_objects",
+        "delta_masked",
+        "delta_counterfactual",
+        "delta_cue",
+        "correlation_commonsense",
+        "correlation_other",
+    ):
         png = out / f"{name}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
     assert not (out / "delta_level.png").exists() and _rows(out, "delta_level") == []
@@ -162,7 +212,21 @@ def test_wandb_offline_logs_the_report(runs_dir: Path, monkeypatch: pytest.Monke
     monkeypatch.setenv("WANDB_MODE", "offline")
     monkeypatch.setenv("WANDB_SILENT", "true")
     out = runs_dir / "wb"
-    assert main([str(runs_dir / "runs" / "M1"), "--out", str(out), "--n-boot", "0", "--wandb-project", "t",
-                 "--wandb-mode", "offline"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                str(runs_dir / "runs" / "M1"),
+                "--out",
+                str(out),
+                "--n-boot",
+                "0",
+                "--wandb-project",
+                "t",
+                "--wandb-mode",
+                "offline",
+            ]
+        )
+        == 0
+    )
     runs = list((out / "wandb").glob("offline-run-*"))
     assert len(runs) == 1 and list(runs[0].glob("*.wandb"))

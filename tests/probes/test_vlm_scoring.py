@@ -23,12 +23,26 @@ OCCLUSION = "F_OCCLUSION_PERCENTAGE_OBJECT"  # generated, reported apart from th
 
 
 def _hand_set(tmp_path: Path) -> Path:
-    items = [item("a1/single", "s1", MASS), item("a2/single", "s1", MASS), item("b1/single", "s2", HEAVIEST),
-             item("c1/single", "s2", DENSITY), item("d1/single", "s3", DISTANCE), item("d2/single", "s3", DISTANCE),
-             item("e1/single", "s3", OCCLUSION),
-             item("a1/roi_masked/single", "s1", MASS, variant="roi_masked", pair="a1/roi_masked")]  # fmt: skip
-    answers = {"a1/single": "A", "a2/single": "B", "b1/single": "C", "c1/single": "D", "d1/single": "A",
-               "d2/single": "A", "e1/single": "B", "a1/roi_masked/single": "A"}  # fmt: skip
+    items = [
+        item("a1/single", "s1", MASS),
+        item("a2/single", "s1", MASS),
+        item("b1/single", "s2", HEAVIEST),
+        item("c1/single", "s2", DENSITY),
+        item("d1/single", "s3", DISTANCE),
+        item("d2/single", "s3", DISTANCE),
+        item("e1/single", "s3", OCCLUSION),
+        item("a1/roi_masked/single", "s1", MASS, variant="roi_masked", pair="a1/roi_masked"),
+    ]
+    answers = {
+        "a1/single": "A",
+        "a2/single": "B",
+        "b1/single": "C",
+        "c1/single": "D",
+        "d1/single": "A",
+        "d2/single": "A",
+        "e1/single": "B",
+        "a1/roi_masked/single": "A",
+    }
     return write_set(tmp_path / "vqa" / "test", items, answers)
 
 
@@ -96,8 +110,12 @@ def test_modes_from_the_manifest_restrict_the_scope(tmp_path: Path) -> None:
 
 
 def test_only_the_items_the_model_was_asked_are_scored(tmp_path: Path) -> None:
-    items = [item("p/single", "s1", MASS), item("p/multi", "s1", MASS, mode="multi"),
-             item("q/single", "s2", MASS), item("r/single", "s3", MASS)]  # fmt: skip
+    items = [
+        item("p/single", "s1", MASS),
+        item("p/multi", "s1", MASS, mode="multi"),
+        item("q/single", "s2", MASS),
+        item("r/single", "s3", MASS),
+    ]
     many = vs.QuestionItem(**{**item("r/single", "s3", MASS).__dict__, "images": ("a.png", "b.png", "c.png")})
     items[3] = many
     set_dir = write_set(tmp_path / "vqa" / "test", items, {it.idx: "A" for it in items})
@@ -130,9 +148,11 @@ def test_the_set_is_found_from_either_manifest_form(tmp_path: Path) -> None:
 def test_circular_evaluation_needs_all_four_rotations(tmp_path: Path) -> None:
     items = [item("x/single", "s1", MASS), item("y/single", "s2", MASS), item("z/single", "s3", MASS)]
     set_dir = write_set(tmp_path / "vqa" / "test", items, {"x/single": "A", "y/single": "B", "z/single": "C"})
-    preds = {**{("x/single", r): "A" for r in range(4)},  # right in every rotation
-             **{("y/single", r): "B" for r in range(3)},  # rotation 3 missing
-             **{("z/single", r): ("C" if r != 2 else "D") for r in range(4)}}  # wrong in rotation 2  # fmt: skip
+    preds = {
+        **{("x/single", r): "A" for r in range(4)},  # right in every rotation
+        **{("y/single", r): "B" for r in range(3)},  # rotation 3 missing
+        **{("z/single", r): ("C" if r != 2 else "D") for r in range(4)},
+    }  # wrong in rotation 2
     s = score_run(write_run(tmp_path / "run", set_dir, preds, circular=True), n_boot=0)
     assert s["strict"]["overall"] == 1.0  # rotation 0 alone: the paper's number
     assert s["circular"]["strict"]["overall"] == pytest.approx(1 / 3)
@@ -162,8 +182,9 @@ def test_bootstrap_matches_macro_accuracy_and_is_seeded() -> None:
         it = item(f"i{k}/single", f"s{k % 37}", q)
         rows.append((it.sequence_id, q, it.sub_category, it.category, float(rng.random() < 0.6)))
     table = build_table(rows)
-    ref = macro_accuracy({"question_id": r[1], "sub_category": r[2], "category": r[3], "correct": r[4] == 1.0}
-                         for r in rows)  # fmt: skip
+    ref = macro_accuracy(
+        {"question_id": r[1], "sub_category": r[2], "category": r[3], "correct": r[4] == 1.0} for r in rows
+    )
     pe = point_estimate(table)
     assert pe["overall"] == pytest.approx(ref["overall"], abs=1e-12)
     assert pe["category"] == pytest.approx(ref["category"]) and pe["question_id"] == pytest.approx(

@@ -49,8 +49,12 @@ def test_client_through_transformers_serve(tmp_path: Path) -> None:
     model_dir = tiny_model_dir("qwen2_vl", 0, tmp_path / "tiny")
     exe = shutil.which("transformers") or str(Path(os.sys.executable).parent / "transformers")
     port = _free_port()
-    proc = subprocess.Popen([exe, "serve", str(model_dir), "--host", "127.0.0.1", "--port", str(port), "--device", "cpu"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env={**os.environ, "HF_HUB_OFFLINE": "1"})  # fmt: skip
+    proc = subprocess.Popen(
+        [exe, "serve", str(model_dir), "--host", "127.0.0.1", "--port", str(port), "--device", "cpu"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+    )
     try:
         deadline = time.time() + 180
         while True:
@@ -73,8 +77,16 @@ def test_client_through_transformers_serve(tmp_path: Path) -> None:
         prompts = [
             Prompt(f"p{n}", tuple(images[:n]), text, ("red", "green", "blue", "grey")) for n in (0, 1, 2)
         ]
-        answerer = OpenAIServerAnswerer(ServerConfig(base_url=f"http://127.0.0.1:{port}/v1", model=str(model_dir),
-                                                     concurrency=2, timeout_s=120, max_retries=1, max_tokens=4))  # fmt: skip
+        answerer = OpenAIServerAnswerer(
+            ServerConfig(
+                base_url=f"http://127.0.0.1:{port}/v1",
+                model=str(model_dir),
+                concurrency=2,
+                timeout_s=120,
+                max_retries=1,
+                max_tokens=4,
+            )
+        )
         gens = answerer.answer(prompts)
         t0, t1, t2 = (g.tokens_in for g in gens)
         assert (t1 - t0, t2 - t1) == (IMAGE_TOKENS, IMAGE_TOKENS)

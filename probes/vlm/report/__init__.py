@@ -15,21 +15,50 @@ from probes.vlm.report.tables import Table
 REPORT_FILE = "report.md"
 
 
-def build_tables(runs: Sequence[Run], benchmarks: dict[str, dict[str, float]] | None = None, n_boot: int = 1000,
-                 seed: int = 0, size_edges: Sequence[float] = analyses.DEFAULT_SIZE_EDGES_B,
-                 young_log10_edges: Sequence[float] = analyses.DEFAULT_YOUNG_LOG10_EDGES) -> list[Table]:  # fmt: skip
-    tables = [analyses.per_category(runs), analyses.subcategory_heatmap(runs), analyses.by_model_size(runs, size_edges),
-              analyses.by_meta_bins(runs, "young_modulus_pa", "by_young_modulus", "Accuracy by Young's modulus of the "
-                                    "asked object", young_log10_edges, log10=True, n_boot=n_boot, seed=seed),
-              analyses.by_meta_bins(runs, "num_objects", "by_num_objects", "Accuracy by number of objects in the scene",
-                                    None, n_boot=n_boot, seed=seed)]  # fmt: skip
+def build_tables(
+    runs: Sequence[Run],
+    benchmarks: dict[str, dict[str, float]] | None = None,
+    n_boot: int = 1000,
+    seed: int = 0,
+    size_edges: Sequence[float] = analyses.DEFAULT_SIZE_EDGES_B,
+    young_log10_edges: Sequence[float] = analyses.DEFAULT_YOUNG_LOG10_EDGES,
+) -> list[Table]:
+    tables = [
+        analyses.per_category(runs),
+        analyses.subcategory_heatmap(runs),
+        analyses.by_model_size(runs, size_edges),
+        analyses.by_meta_bins(
+            runs,
+            "young_modulus_pa",
+            "by_young_modulus",
+            "Accuracy by Young's modulus of the asked object",
+            young_log10_edges,
+            log10=True,
+            n_boot=n_boot,
+            seed=seed,
+        ),
+        analyses.by_meta_bins(
+            runs,
+            "num_objects",
+            "by_num_objects",
+            "Accuracy by number of objects in the scene",
+            None,
+            n_boot=n_boot,
+            seed=seed,
+        ),
+    ]
     tables += [analyses.variant_deltas(runs, g, n_boot, seed) for g in analyses.VARIANT_GROUPS]
     if benchmarks is not None:
         tables.append(analyses.correlation(runs, benchmarks))
     else:
-        tables.append(analyses.not_enough("correlation", "Correlation with common-sense benchmarks",
-                                          ["benchmark", "category", "n_models", "pearson_r", "p_value", "models"],
-                                          "no benchmark CSV given (--benchmarks, columns model, <benchmark>...)"))  # fmt: skip
+        tables.append(
+            analyses.not_enough(
+                "correlation",
+                "Correlation with common-sense benchmarks",
+                ["benchmark", "category", "n_models", "pearson_r", "p_value", "models"],
+                "no benchmark CSV given (--benchmarks, columns model, <benchmark>...)",
+            )
+        )
     return tables
 
 
@@ -76,16 +105,28 @@ def write_report(runs: Sequence[Run], out: Path, tables: Sequence[Table]) -> dic
         cov = s["coverage"]
         weights = (run.manifest.get("model") or {}).get("weights", "?")
         prior = s["baselines"]["text_prior"].get("overall")
-        parts.append(f"| {run.label} | {cov['items']} | {cov['predicted']}/{cov['items']} | {s['strict']['overall']:.3f} | "
-                     + (f"[{ci[0]:.3f}, {ci[1]:.3f}]" if ci else "–")
-                     + f" | {s['lenient']['overall']:.3f} | {s['baselines']['constant_letter']['overall']:.3f} "
-                     f"({s['baselines']['constant_letter']['letter']}) | "
-                     + ("–" if prior is None else f"{prior:.3f}") + f" | {weights} |")  # fmt: skip
-        summary[run.label] = {"run_dir": str(run.run_dir), "strict": s["strict"]["overall"], "ci": ci,
-                              "lenient": s["lenient"]["overall"], "coverage": cov, "params_b": run.params_b,
-                              "baselines": {"chance": 0.25, "constant_letter": s["baselines"]["constant_letter"]["overall"],
-                                            "text_prior": prior},
-                              "circular": None if s["circular"] is None else s["circular"]["strict"]["overall"]}  # fmt: skip
+        parts.append(
+            f"| {run.label} | {cov['items']} | {cov['predicted']}/{cov['items']} | {s['strict']['overall']:.3f} | "
+            + (f"[{ci[0]:.3f}, {ci[1]:.3f}]" if ci else "–")
+            + f" | {s['lenient']['overall']:.3f} | {s['baselines']['constant_letter']['overall']:.3f} "
+            f"({s['baselines']['constant_letter']['letter']}) | "
+            + ("–" if prior is None else f"{prior:.3f}")
+            + f" | {weights} |"
+        )
+        summary[run.label] = {
+            "run_dir": str(run.run_dir),
+            "strict": s["strict"]["overall"],
+            "ci": ci,
+            "lenient": s["lenient"]["overall"],
+            "coverage": cov,
+            "params_b": run.params_b,
+            "baselines": {
+                "chance": 0.25,
+                "constant_letter": s["baselines"]["constant_letter"]["overall"],
+                "text_prior": prior,
+            },
+            "circular": None if s["circular"] is None else s["circular"]["strict"]["overall"],
+        }
     parts.append("")
     files: list[str] = []
     for t in tables:

@@ -39,29 +39,60 @@ DEFAULT_YOUNG_LOG10_EDGES: tuple[float, ...] = (4.0, 6.0, 7.0, 8.0, 9.0, 10.0, 1
 VARIANT_GROUPS: dict[str, tuple[str, ...]] = {
     "masked": ("roi_masked", "black_image"),
     "counterfactual": ("cf_gravity", "cf_shift", "cf_resize"),
-    "cue": ("roi_circle", "location", "roi_circle_location", "roi_only", "location_only", "roi_location_only",
-            "cue_duration", "cue_mass_exact", "cue_mass_approx"),
+    "cue": (
+        "roi_circle",
+        "location",
+        "roi_circle_location",
+        "roi_only",
+        "location_only",
+        "roi_location_only",
+        "cue_duration",
+        "cue_mass_exact",
+        "cue_mass_approx",
+    ),
     "level": ("level_child", "level_teen", "level_undergrad", "level_graduate", "level_expert"),
-}  # fmt: skip
-TITLES = {"masked": "ROI-masked (and all-black) minus base: answering without looking",
-          "counterfactual": "Counterfactual vs factual on overlapping questions",
-          "cue": "Spatial and physical cues minus base", "level": "Expertise levels of the wording minus base"}  # fmt: skip
+}
+TITLES = {
+    "masked": "ROI-masked (and all-black) minus base: answering without looking",
+    "counterfactual": "Counterfactual vs factual on overlapping questions",
+    "cue": "Spatial and physical cues minus base",
+    "level": "Expertise levels of the wording minus base",
+}
 
 
 def scoped(run: Run, variant: str | None = vs.BASE_VARIANT) -> list[ItemResult]:
     """Items of the run's headline scope (its modes, analysed ids), of ``variant`` (None: all variants)."""
     modes = run.scores["protocol"]["modes"]
-    return [r for r in run.results if r.item.mode in modes and vs.question_spec(r.item.question_id).in_analysis
-            and (variant is None or r.item.variant == variant)]  # fmt: skip
+    return [
+        r
+        for r in run.results
+        if r.item.mode in modes
+        and vs.question_spec(r.item.question_id).in_analysis
+        and (variant is None or r.item.variant == variant)
+    ]
 
 
 # -- per category, heatmap, size --------------------------------------------------------------------------
 def per_category(runs: Sequence[Run]) -> Table:
-    cols = ["model", "category", "n_items", "strict", "ci_lo", "ci_hi", "lenient", "chance", "constant_letter",
-            "text_prior"]  # fmt: skip
-    t = Table("per_category", "Accuracy per category (strict, 95 % CI over sequences) beside trivial baselines", cols,
-              note="strict = the paper's letter rule; lenient apart; constant_letter = the best single letter of "
-                   "that category; text_prior = blind leave-one-sequence-out prior (newtphys.vqa_prior).")  # fmt: skip
+    cols = [
+        "model",
+        "category",
+        "n_items",
+        "strict",
+        "ci_lo",
+        "ci_hi",
+        "lenient",
+        "chance",
+        "constant_letter",
+        "text_prior",
+    ]
+    t = Table(
+        "per_category",
+        "Accuracy per category (strict, 95 % CI over sequences) beside trivial baselines",
+        cols,
+        note="strict = the paper's letter rule; lenient apart; constant_letter = the best single letter of "
+        "that category; text_prior = blind leave-one-sequence-out prior (newtphys.vqa_prior).",
+    )
     present = sorted({c for run in runs for c in run.scores["strict"]["category"]})
     plot: dict[str, Any] = {"models": [], "categories": present, "acc": {}, "ci": {}, "baselines": {}}
     for run in runs:
@@ -73,11 +104,35 @@ def per_category(runs: Sequence[Run]) -> Table:
         prior = b["text_prior"].get("category", {})
         for cat in sorted(s["category"]):
             lo, hi = ci.get(cat) or (None, None)
-            t.rows.append([run.label, cat, n_cat[cat], s["category"][cat], lo, hi, run.scores["lenient"]["category"][cat],
-                           b["chance"]["overall"], b["constant_letter"]["category_best"][cat], prior.get(cat)])  # fmt: skip
+            t.rows.append(
+                [
+                    run.label,
+                    cat,
+                    n_cat[cat],
+                    s["category"][cat],
+                    lo,
+                    hi,
+                    run.scores["lenient"]["category"][cat],
+                    b["chance"]["overall"],
+                    b["constant_letter"]["category_best"][cat],
+                    prior.get(cat),
+                ]
+            )
         lo, hi = (s.get("ci") or {}).get("overall") or (None, None)
-        t.rows.append([run.label, "overall", s["n_items"], s["overall"], lo, hi, run.scores["lenient"]["overall"],
-                       b["chance"]["overall"], b["constant_letter"]["overall"], b["text_prior"].get("overall")])  # fmt: skip
+        t.rows.append(
+            [
+                run.label,
+                "overall",
+                s["n_items"],
+                s["overall"],
+                lo,
+                hi,
+                run.scores["lenient"]["overall"],
+                b["chance"]["overall"],
+                b["constant_letter"]["overall"],
+                b["text_prior"].get("overall"),
+            ]
+        )
         plot["models"].append(run.label)
         plot["acc"][run.label] = s["category"]
         plot["ci"][run.label] = ci
@@ -108,8 +163,13 @@ def by_model_size(runs: Sequence[Run], edges: Sequence[float] = DEFAULT_SIZE_EDG
     cols = ["size_bin_b", "n_models", "mean_strict", "min_strict", "max_strict", "models"]
     sized = [r for r in runs if r.params_b is not None]
     if not sized:
-        return not_enough("by_model_size", "Accuracy by model size", cols, "no model size known: add `params_b` "
-                          "to the model record or pass --sizes CSV (columns model, params_b)")  # fmt: skip
+        return not_enough(
+            "by_model_size",
+            "Accuracy by model size",
+            cols,
+            "no model size known: add `params_b` "
+            "to the model record or pass --sizes CSV (columns model, params_b)",
+        )
     t = Table(
         "by_model_size",
         "Accuracy by model size (billions of parameters)",
@@ -122,8 +182,16 @@ def by_model_size(runs: Sequence[Run], edges: Sequence[float] = DEFAULT_SIZE_EDG
         if not members:
             continue
         acc = [r.scores["strict"]["overall"] for r in members]
-        t.rows.append([f"[{lo:g}, {hi:g})", len(members), float(np.mean(acc)), min(acc), max(acc),
-                       "; ".join(r.label for r in members)])  # fmt: skip
+        t.rows.append(
+            [
+                f"[{lo:g}, {hi:g})",
+                len(members),
+                float(np.mean(acc)),
+                min(acc),
+                max(acc),
+                "; ".join(r.label for r in members),
+            ]
+        )
     for r in sorted(sized, key=lambda r: r.params_b):  # type: ignore[arg-type, return-value]
         points.append(
             (
@@ -148,13 +216,26 @@ def _best_letter_share(rs: Sequence[ItemResult]) -> float:
     return max(sum(r.answer == k for r in rs) for k in vs.LETTERS) / len(rs)
 
 
-def by_meta_bins(runs: Sequence[Run], key: str, name: str, title: str, edges: Sequence[float] | None = None,
-                 log10: bool = False, n_boot: int = 1000, seed: int = 0) -> Table:  # fmt: skip
+def by_meta_bins(
+    runs: Sequence[Run],
+    key: str,
+    name: str,
+    title: str,
+    edges: Sequence[float] | None = None,
+    log10: bool = False,
+    n_boot: int = 1000,
+    seed: int = 0,
+) -> Table:
     """Micro accuracy per bin of ``meta[key]`` (``edges`` over the value, or its log10; None: one bin per
     distinct value)."""
     cols = ["model", "bin", "n_items", "n_sequences", "strict", "ci_lo", "ci_hi", "constant_letter_share"]
-    t = Table(name, title, cols, note="Share of base items right (micro) per bin, 95 % CI over sequences; "
-              "constant_letter_share = the bin's most frequent answer letter.")  # fmt: skip
+    t = Table(
+        name,
+        title,
+        cols,
+        note="Share of base items right (micro) per bin, 95 % CI over sequences; "
+        "constant_letter_share = the bin's most frequent answer letter.",
+    )
     plot: dict[str, list[tuple[str, float, float, float]]] = {}
     for run in runs:
         bins: dict[tuple[float, str], list[ItemResult]] = defaultdict(list)
@@ -205,8 +286,9 @@ def matched_pairs(run: Run, variant: str) -> list[tuple[ItemResult, ItemResult]]
     return out
 
 
-def paired_delta(pairs: Sequence[tuple[ItemResult, ItemResult]], n_boot: int, seed: int,
-                 level: float = 0.95) -> tuple[float, float, float, list[float] | None, int]:  # fmt: skip
+def paired_delta(
+    pairs: Sequence[tuple[ItemResult, ItemResult]], n_boot: int, seed: int, level: float = 0.95
+) -> tuple[float, float, float, list[float] | None, int]:
     """(base accuracy, variant accuracy, delta, delta CI over sequences, sequences) of matched pairs."""
     seqs = sorted({b.item.sequence_id for b, _ in pairs})
     k = {s: i for i, s in enumerate(seqs)}
@@ -229,9 +311,13 @@ def paired_delta(pairs: Sequence[tuple[ItemResult, ItemResult]], n_boot: int, se
 def variant_deltas(runs: Sequence[Run], group: str, n_boot: int = 1000, seed: int = 0) -> Table:
     variants = VARIANT_GROUPS[group]
     cols = ["model", "variant", "n_matched", "n_sequences", "base", "variant_acc", "delta", "ci_lo", "ci_hi"]
-    t = Table(f"delta_{group}", TITLES[group], cols,
-              note="Matched pairs only (variant item and its base item both answered in the run); "
-                   "delta = variant - base, share of items right (strict), paired 95 % CI over sequences.")  # fmt: skip
+    t = Table(
+        f"delta_{group}",
+        TITLES[group],
+        cols,
+        note="Matched pairs only (variant item and its base item both answered in the run); "
+        "delta = variant - base, share of items right (strict), paired 95 % CI over sequences.",
+    )
     plot: dict[str, list[tuple[str, float, float, float]]] = {}
     absent = []
     for variant in variants:
@@ -267,11 +353,19 @@ def correlation(runs: Sequence[Run], benchmarks: dict[str, dict[str, float]]) ->
     matched = [(run, run.lookup(benchmarks)) for run in runs]
     matched = [(run, row) for run, row in matched if row]
     if not names or len(matched) < 3:
-        return not_enough("correlation", "Correlation with common-sense benchmarks", cols,
-                          f"{len(matched)} model(s) of the runs found in the benchmark CSV; Pearson r needs >= 3")  # fmt: skip
-    t = Table("correlation", "Pearson correlation of category accuracy with common-sense benchmarks", cols,
-              note="Over models present in both the runs and the CSV (n_models); r is undefined (–) when either "
-                   "side is constant.")  # fmt: skip
+        return not_enough(
+            "correlation",
+            "Correlation with common-sense benchmarks",
+            cols,
+            f"{len(matched)} model(s) of the runs found in the benchmark CSV; Pearson r needs >= 3",
+        )
+    t = Table(
+        "correlation",
+        "Pearson correlation of category accuracy with common-sense benchmarks",
+        cols,
+        note="Over models present in both the runs and the CSV (n_models); r is undefined (–) when either "
+        "side is constant.",
+    )
     scatter: dict[str, dict[str, list[tuple[str, float, float]]]] = {}
     categories = sorted({c for run, _ in matched for c in run.scores["strict"]["category"]}) + ["overall"]
     for bench in names:

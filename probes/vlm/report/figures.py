@@ -52,8 +52,15 @@ def heatmap(plot: dict[str, Any], path: Path) -> Path:
     for i in range(m.shape[0]):
         for j in range(m.shape[1]):
             if not math.isnan(m[i, j]):
-                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=6,
-                        color="white" if m[i, j] < 0.5 else "black")  # fmt: skip
+                ax.text(
+                    j,
+                    i,
+                    f"{m[i, j]:.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize=6,
+                    color="white" if m[i, j] < 0.5 else "black",
+                )
     fig.colorbar(im, ax=ax, label="macro accuracy (strict)")
     return _save(fig, path)
 
@@ -82,8 +89,12 @@ def size_scatter(plot: dict[str, Any], path: Path) -> Path:
     return _save(fig, path)
 
 
-def binned_lines(plot: dict[str, list[tuple[str, float, float, float]]], path: Path, xlabel: str,
-                 ylabel: str = "share right (strict)") -> Path:  # fmt: skip
+def binned_lines(
+    plot: dict[str, list[tuple[str, float, float, float]]],
+    path: Path,
+    xlabel: str,
+    ylabel: str = "share right (strict)",
+) -> Path:
     """One line per model over the bins (labels in order of first appearance across models)."""
     labels: list[str] = []
     for rows in plot.values():

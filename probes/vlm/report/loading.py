@@ -110,8 +110,13 @@ def _label(manifest: dict[str, Any], run_dir: Path) -> str:
     return label
 
 
-def load_runs(paths: list[Path], set_dir: Path | None = None, n_boot: int = 1000, seed: int = 0,
-              sizes_csv: Path | None = None) -> list[Run]:  # fmt: skip
+def load_runs(
+    paths: list[Path],
+    set_dir: Path | None = None,
+    n_boot: int = 1000,
+    seed: int = 0,
+    sizes_csv: Path | None = None,
+) -> list[Run]:
     """Every run under ``paths``, joined with its set (``set_dir`` or the manifest's) and scored."""
     sizes = read_model_csv(sizes_csv, ["params_b"]) if sizes_csv else {}
     runs: list[Run] = []
@@ -121,8 +126,9 @@ def load_runs(paths: list[Path], set_dir: Path | None = None, n_boot: int = 1000
         results, not_asked = asked_results(item_results(d, sd), manifest)
         scores = score_results(results, not_asked, n_boot=n_boot, seed=seed)
         model = manifest.get("model") or {}
-        aliases = tuple(dict.fromkeys(str(a) for a in (manifest.get("answerer"), model.get("id"), model.get("name"))
-                                      if a))  # fmt: skip
+        aliases = tuple(
+            dict.fromkeys(str(a) for a in (manifest.get("answerer"), model.get("id"), model.get("name")) if a)
+        )
         run = Run(_label(manifest, d), d, sd, manifest, results, scores, _size_from_record(model), aliases)
         if run.params_b is None:
             run.params_b = (run.lookup(sizes) or {}).get("params_b")

@@ -12,14 +12,25 @@ from typing import Any
 from probes.vlm.report.tables import Table
 
 
-def log_report(tables: Sequence[Table], summary: dict[str, Any], out: Path, project: str = "newtphys-vlm",
-               mode: str | None = None, name: str | None = None) -> str:  # fmt: skip
+def log_report(
+    tables: Sequence[Table],
+    summary: dict[str, Any],
+    out: Path,
+    project: str = "newtphys-vlm",
+    mode: str | None = None,
+    name: str | None = None,
+) -> str:
     """Log to W&B; returns the run's local directory."""
     import wandb
 
-    run = wandb.init(project=project, job_type="vlm_report", name=name, dir=str(out),
-                     mode=mode or os.environ.get("WANDB_MODE", "online"),
-                     config={"models": sorted(summary)})  # fmt: skip
+    run = wandb.init(
+        project=project,
+        job_type="vlm_report",
+        name=name,
+        dir=str(out),
+        mode=mode or os.environ.get("WANDB_MODE", "online"),
+        config={"models": sorted(summary)},
+    )
     try:
         for label, s in summary.items():
             for key in ("strict", "lenient", "circular"):
