@@ -25,6 +25,7 @@ import base64
 import logging
 import os
 import random
+import re
 import threading
 import time
 from collections.abc import Mapping
@@ -175,7 +176,7 @@ class OpenAIServerAnswerer:
 
     def __init__(self, config: ServerConfig, name: str | None = None) -> None:
         self.config = config
-        self.name = name or f"openai:{config.model}"
+        self.name = name or default_name(config.model)
         self.url = config.base_url.rstrip("/") + "/chat/completions"
         self.stats = ClientStats()
         self._lock = threading.Lock()
@@ -331,9 +332,21 @@ class OpenAIServerAnswerer:
         return out
 
 
+def default_name(model: str) -> str:
+    """Results name of a served model: ``openai-<model>`` with path separators and spaces made ``_`` (it names
+    a run directory)."""
+    return "openai-" + re.sub(r"[^A-Za-z0-9._-]+", "_", model).strip("_")
+
+
 def from_config(cfg: Mapping[str, Any]) -> OpenAIServerAnswerer:
-    """The answerer of a ``vlm=openai_server`` config node (a plain mapping or resolved DictConfig)."""
-    name = cfg.get("name") if hasattr(cfg, "get") else None
+    """The answerer of a ``vlm=openai_server`` config node (a plain mapping or resolved DictConfig); ``name``
+    ``openai_server`` (the config's default) becomes :func:`default_name` of the model."""
+    name = cfg.get("name")
     return OpenAIServerAnswerer(
         ServerConfig.from_mapping(cfg), name=name if name and name != "openai_server" else None
     )
+
+
+def build_openai_answerer(**kwargs: Any) -> OpenAIServerAnswerer:
+    """``_target_`` of ``newtphys/conf/vlm/openai_server.yaml``: the config's keys as keyword arguments."""
+    return from_config(kwargs)

@@ -167,7 +167,7 @@ def test_api_key_from_the_environment_is_sent_and_never_shown(server, tmp_path: 
         }
     )
     assert answerer.answer(_prompts(tmp_path, "B"))[0].text == "The answer is B."
-    assert secret not in json.dumps(answerer.describe()) and answerer.name == "openai:stub"
+    assert secret not in json.dumps(answerer.describe()) and answerer.name == "openai-stub"
     monkeypatch.setenv("NEWTPHYS_TEST_KEY", "wrong-key")
     with pytest.raises(ServerError, match="HTTP 401") as e:
         answerer.answer(_prompts(tmp_path, "B"))
@@ -198,13 +198,15 @@ def test_bad_config_is_rejected_with_the_key() -> None:
 
 
 def test_the_hydra_config_builds_the_client() -> None:
+    import hydra
     from omegaconf import OmegaConf
 
     cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "newtphys/conf/vlm/openai_server.yaml")
     cfg.model = "Qwen/Qwen2.5-VL-7B-Instruct"
-    answerer = from_config(OmegaConf.to_container(cfg, resolve=True))
+    answerer = hydra.utils.instantiate(cfg)  # as the evaluate CLI builds a vlm= config
+    assert isinstance(answerer, OpenAIServerAnswerer)
     assert answerer.config.temperature == 0.0 and answerer.config.max_tokens == 16
     assert answerer.url == "http://127.0.0.1:8000/v1/chat/completions"
     assert (
-        answerer.name == "openai:Qwen/Qwen2.5-VL-7B-Instruct" and answerer.describe()["weights"] == "served"
+        answerer.name == "openai-Qwen_Qwen2.5-VL-7B-Instruct" and answerer.describe()["weights"] == "served"
     )

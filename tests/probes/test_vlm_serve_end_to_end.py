@@ -104,4 +104,4 @@ def test_served_answers_are_scored_and_reported(tmp_path: Path) -> None:
     assert scores["coverage"]["items"] == 8 and scores["coverage"]["missing"] == 0
     assert scores["baselines"]["constant_letter"]["best_share"] == 0.25  # letters 0, 3, 2, 1, ... balanced
     assert report_main([str(run), "--out", str(tmp_path / "report"), "--n-boot", "50"]) == 0
-    assert "| openai:stub | 8 | 8/8 | 1.000 |" in (tmp_path / "report" / "report.md").read_text()
+    assert "| openai-stub | 8 | 8/8 | 1.000 |" in (tmp_path / "report" / "report.md").read_text()
