@@ -48,9 +48,14 @@ def main(argv: list[str] | None = None) -> int:
         default=",".join(f"{e:g}" for e in DEFAULT_YOUNG_LOG10_EDGES),
         help="log10(Young's modulus / Pa) bin edges",
     )
+    p.add_argument(
+        "--rank-bin", type=int, default=10, help="models per rank bin (ranked by overall accuracy)"
+    )
     p.add_argument("--wandb-project", default=None, help="also log to this W&B project")
     p.add_argument("--wandb-mode", default=None, choices=["online", "offline", "disabled"])
     args = p.parse_args(argv)
+    if args.rank_bin < 1:
+        p.error(f"--rank-bin={args.rank_bin}, must be >= 1")
     try:
         runs = load_runs(args.results, args.set_dir, args.n_boot, args.seed, args.sizes)
         benchmarks = read_model_csv(args.benchmarks) if args.benchmarks else None
@@ -64,6 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         args.seed,
         _edges(args.size_bins, "--size-bins"),
         _edges(args.young_bins, "--young-bins"),
+        args.rank_bin,
     )
     written = write_report(runs, args.out, tables)
     if args.wandb_project:

@@ -111,6 +111,9 @@ def test_report_tables_by_hand(runs_dir: Path) -> None:
     heat = {r[0]: r for r in tables["subcategory_heatmap"].rows}
     assert tables["subcategory_heatmap"].columns == ["model", "kinematics", "mass", "overall"]
     assert heat["M2"][1:] == [1.0, 0.75, 0.875]
+    rank = {r[0]: r for r in build_tables(runs, None, n_boot=0, rank_bin=2)[2].rows}
+    # ranked M2 (.875), M1 (.75) | M0 (.625); columns: bin, n, overall, material_understanding, mechanics, models
+    assert rank["1-2"][1:5] == [2, 0.8125, 0.625, 1.0] and rank["3-3"][1:6] == [1, 0.625, 0.25, 1.0, "M0"]
     size = tables["by_model_size"]
     assert [r[:3] for r in size.rows] == [["[0, 1)", 1, 0.625], ["[3, 8)", 1, 0.75]] and "M2" in size.note
     ym = {(r[0], r[1]): r for r in tables["by_young_modulus"].rows}
@@ -176,6 +179,7 @@ def test_cli_writes_markdown_csv_png_without_pyplot(runs_dir: Path) -> None:
     assert "| M1 | 16 | 16/16 | 0.750 |" in md and "not enough items" in md
     for name in (
         "per_category",
+        "by_model_rank",
         "subcategory_heatmap",
         "by_model_size",
         "by_young_modulus",

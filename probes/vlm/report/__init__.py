@@ -22,10 +22,12 @@ def build_tables(
     seed: int = 0,
     size_edges: Sequence[float] = analyses.DEFAULT_SIZE_EDGES_B,
     young_log10_edges: Sequence[float] = analyses.DEFAULT_YOUNG_LOG10_EDGES,
+    rank_bin: int = 10,
 ) -> list[Table]:
     tables = [
         analyses.per_category(runs),
         analyses.subcategory_heatmap(runs),
+        analyses.by_model_rank(runs, rank_bin),
         analyses.by_model_size(runs, size_edges),
         analyses.by_meta_bins(
             runs,
@@ -69,6 +71,10 @@ def _figure(t: Table, out: Path) -> list[Path]:
         return [figures.per_category(t.plot, out / "per_category.png")]
     if t.name == "subcategory_heatmap":
         return [figures.heatmap(t.plot, out / "subcategory_heatmap.png")]
+    if t.name == "by_model_rank":
+        return [
+            figures.binned_lines(t.plot, out / f"{t.name}.png", "model rank bin", "macro accuracy (strict)")
+        ]
     if t.name == "by_model_size":
         return [figures.size_scatter(t.plot, out / "by_model_size.png")]
     if t.name == "by_young_modulus":
@@ -76,7 +82,9 @@ def _figure(t: Table, out: Path) -> list[Path]:
     if t.name == "by_num_objects":
         return [figures.binned_lines(t.plot, out / f"{t.name}.png", "objects in the scene")]
     if t.name.startswith("delta_"):
-        return [figures.binned_lines(t.plot, out / f"{t.name}.png", "variant", "delta vs base (share right)")]
+        return [
+            figures.binned_lines(t.plot, out / f"{t.name}.png", "variant", "delta vs base (share right)", 0.0)
+        ]
     if t.name == "correlation":
         return [
             figures.scatter_grid(pts, out / f"correlation_{_safe(b)}.png", b) for b, pts in t.plot.items()

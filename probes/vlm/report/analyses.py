@@ -159,6 +159,35 @@ def subcategory_heatmap(runs: Sequence[Run]) -> Table:
     return t
 
 
+def by_model_rank(runs: Sequence[Run], bin_size: int = 10) -> Table:
+    """Models ranked by overall strict accuracy (best first), in bins of ``bin_size`` ranks: the mean
+    accuracy of each category over the models of a bin (which categories improve as models get better)."""
+    cats = sorted({c for run in runs for c in run.scores["strict"]["category"]})
+    cols = ["rank_bin", "n_models", "overall", *cats, "models"]
+    title = f"Accuracy by model rank (bins of {bin_size}, best first)"
+    if len(runs) < 2:
+        return not_enough("by_model_rank", title, cols, f"{len(runs)} model(s); ranks need at least 2")
+    ranked = sorted(runs, key=lambda r: (-r.scores["strict"]["overall"], r.label))
+    t = Table(
+        "by_model_rank", title, cols, note="Mean over the models of each bin of their strict macro accuracy."
+    )
+    series: dict[str, list[tuple[str, float, float, float]]] = {c: [] for c in ["overall", *cats]}
+    for start in range(0, len(ranked), bin_size):
+        members = ranked[start : start + bin_size]
+        label = f"{start + 1}-{start + len(members)}"
+        overall = float(np.mean([r.scores["strict"]["overall"] for r in members]))
+        per_cat = []
+        for c in cats:
+            vals = [r.scores["strict"]["category"][c] for r in members if c in r.scores["strict"]["category"]]
+            per_cat.append(float(np.mean(vals)) if vals else None)
+        t.rows.append([label, len(members), overall, *per_cat, "; ".join(r.label for r in members)])
+        for key, v in zip(["overall", *cats], [overall, *per_cat], strict=True):
+            if v is not None:
+                series[key].append((label, v, v, v))
+    t.plot = {k: v for k, v in series.items() if v}
+    return t
+
+
 def by_model_size(runs: Sequence[Run], edges: Sequence[float] = DEFAULT_SIZE_EDGES_B) -> Table:
     cols = ["size_bin_b", "n_models", "mean_strict", "min_strict", "max_strict", "models"]
     sized = [r for r in runs if r.params_b is not None]

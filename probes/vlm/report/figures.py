@@ -94,8 +94,10 @@ def binned_lines(
     path: Path,
     xlabel: str,
     ylabel: str = "share right (strict)",
+    reference: float = CHANCE,
 ) -> Path:
-    """One line per model over the bins (labels in order of first appearance across models)."""
+    """One line per series (a model, or a category) over the bins (labels in order of first appearance),
+    with error bars, and a dashed reference line (chance, or 0 for deltas)."""
     labels: list[str] = []
     for rows in plot.values():
         labels += [r[0] for r in rows if r[0] not in labels]
@@ -107,7 +109,7 @@ def binned_lines(
         ys = np.array([r[1] for r in rows])
         err = np.array([[r[1] - r[2], r[3] - r[1]] for r in rows]).T
         ax.errorbar(xs, ys, yerr=err, marker="o", capsize=2, label=model)
-    ax.axhline(CHANCE if ylabel.startswith("share") else 0.0, color="grey", linestyle="--", linewidth=1)
+    ax.axhline(reference, color="grey", linestyle="--", linewidth=1)
     ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right", fontsize=7)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
