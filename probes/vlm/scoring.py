@@ -12,10 +12,17 @@ evaluation loop recorded it, else every mode of the set). Within the scope:
 * macro accuracy question id -> sub-category -> category -> overall
   (:func:`newtphys.vqa_scoring.macro_accuracy`), with bootstrap 95 % intervals that resample sequences
   (:mod:`probes.vlm.bootstrap`);
-* circular evaluation, when the run has rotations 1-3: an item is right only if rotations 0-3 all are;
-* beside every score, the trivial predictors on the same items: chance (0.25), the best constant letter
-  (macro accuracy of answering one letter everywhere; and the letter shares) and the text prior of
-  :mod:`newtphys.vqa_prior` (leave-one-sequence-out; an abstention scores its expected 0.25).
+* circular evaluation, when the run has rotations 1-3: the headline ``strict`` / ``lenient`` count an item
+  right only if rotations 0-3 all are; ``rotation0`` keeps the paper's number (rotation 0 alone) apart;
+* beside every score, the trivial predictors on the same items under the same rule (``baselines``, flat:
+  ``chance``, ``constant_A`` ... ``constant_D``, ``prior``; ``best_trivial``; ``baseline_details``): chance
+  (0.25, circular 0.25^4), each constant letter (macro accuracy of answering it everywhere; 0 circular),
+  the text prior of :mod:`newtphys.vqa_prior` (leave-one-sequence-out; an abstention scores its expected
+  0.25); details: the best letter per category, the letter shares, the prior per category.
+
+Top-level keys shared with :mod:`probes.vlm.simple_scores` (the fallback): ``scorer``, ``answerer``,
+``weights``, ``circular`` (bool), ``items``, ``extracted_share``, ``strict``, ``lenient``, ``baselines``,
+``best_trivial``.
 
 The variants (roi_masked, cue_*, level_*, cf_* ...) are scored too, by variant, and the ids left out of the
 analysis apart; :mod:`probes.vlm.report` builds the paper's analyses from :func:`item_results`.
@@ -38,6 +45,7 @@ from probes.vlm.bootstrap import bootstrap_ci, build_table, point_estimate
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, SCORES_FILE, PredictionRecord
 
 ROTATIONS: tuple[int, ...] = (0, 1, 2, 3)
+SCORER = "probes.vlm.scoring (macro accuracy, sequence-bootstrap CIs)"
 PRIOR_MAX_ITEMS = 20_000
 """The text prior is quadratic in items per question id: skipped (and said so) above this many items."""
 
@@ -57,6 +65,11 @@ class ItemResult:
     circular_lenient: bool | None = None
     letter: str | None = None
     """The strict letter of rotation 0 (None: missing or not extracted)."""
+
+    @property
+    def right(self) -> bool:
+        """The headline correctness: circular strict in a circular run, else strict."""
+        return self.strict if self.circular_strict is None else self.circular_strict
 
 
 def file_sha256(path: Path) -> str:
@@ -277,13 +290,25 @@ def text_prior_baseline(results: Sequence[ItemResult], max_items: int = PRIOR_MA
     }
 
 
-def baselines(results: Sequence[ItemResult], max_prior_items: int = PRIOR_MAX_ITEMS) -> dict[str, Any]:
-    """Trivial predictors on the same items: chance, the best constant letter, the text prior."""
-    return {
-        "chance": {"overall": CHANCE},
-        "constant_letter": constant_letter_baseline(results),
-        "text_prior": text_prior_baseline(results, max_prior_items),
-    }
+def trivial_baselines(
+    results: Sequence[ItemResult], circular: bool = False, max_prior_items: int = PRIOR_MAX_ITEMS
+) -> tuple[dict[str, float], dict[str, Any]]:
+    """Trivial predictors on the same items, under the headline rule: ``chance`` (0.25; 0.25^4 circular),
+    ``constant_A`` ... ``constant_D`` (macro accuracy of answering that letter everywhere; 0 circular: one prompt
+    letter names a different option in each rotation) and ``prior`` (the text prior; it picks the same option
+    in every rotation, so circular changes nothing). Returns (name -> overall, details)."""
+    constant = constant_letter_baseline(results)
+    prior = text_prior_baseline(results, max_prior_items)
+    flat: dict[str, float] = {"chance": CHANCE ** (len(ROTATIONS) if circular else 1)}
+    for letter in vs.LETTERS:
+        flat[f"constant_{letter}"] = 0.0 if circular else constant["macro_per_letter"][letter]
+    if circular:
+        constant = {**constant, "overall": 0.0, "category_best": dict.fromkeys(constant["category_best"], 0.0),
+                    "letter": None, "note": "circular: a constant prompt letter is never right in all four rotations",
+                    "rotation0_overall": constant["overall"]}  # fmt: skip
+    if "overall" in prior:
+        flat["prior"] = prior["overall"]
+    return flat, {"chance": flat["chance"], "constant_letter": constant, "text_prior": prior}
 
 
 def _scope(results: Sequence[ItemResult], modes: Sequence[str], variant: str | None) -> list[ItemResult]:
@@ -317,7 +342,17 @@ def score_results(
             f"no base items of the analysed question ids in modes {list(modes)}: nothing to score"
         )
     circular = any(r.circular_strict is not None for r in results)
+    key_strict, key_lenient = ("circular_strict", "circular_lenient") if circular else ("strict", "lenient")
+    flat, details = trivial_baselines(head, circular, max_prior_items)
+    best = max(flat, key=lambda k: (flat[k], k))
+    predicted = sum(r.predicted for r in head)
     out: dict[str, Any] = {
+        "scorer": SCORER,
+        "circular": circular,
+        "items": len(head),
+        "extracted_share": (predicted - sum(r.predicted and r.letter is None for r in head)) / predicted
+        if predicted
+        else 0.0,
         "protocol": {
             "variant": vs.BASE_VARIANT,
             "modes": list(modes),
@@ -328,6 +363,7 @@ def score_results(
             "seed": seed,
             "resampled": "sequence_id",
             "circular": circular,
+            "headline": "all four rotations right" if circular else "rotation 0 (the paper's protocol)",
         },
         "coverage": {
             "items": len(head),
@@ -336,16 +372,17 @@ def score_results(
             "unextracted_strict": sum(r.predicted and r.letter is None for r in head),
             "not_asked": dict(not_asked or {}),
         },
-        "strict": macro_score(head, "strict", n_boot, seed, level),
-        "lenient": macro_score(head, "lenient", n_boot, seed, level),
-        "circular": None,
-        "baselines": baselines(head, max_prior_items),
+        "strict": macro_score(head, key_strict, n_boot, seed, level),
+        "lenient": macro_score(head, key_lenient, n_boot, seed, level),
+        "rotation0": None,
+        "baselines": flat,
+        "best_trivial": {"name": best, "overall": flat[best]},
+        "baseline_details": details,
     }
-    if circular:
-        out["circular"] = {
-            "strict": macro_score(head, "circular_strict", n_boot, seed, level),
-            "lenient": macro_score(head, "circular_lenient", n_boot, seed, level),
-            "chance": CHANCE**4,
+    if circular:  # the paper's number (no circular evaluation) from the same run, apart
+        out["rotation0"] = {
+            "strict": macro_score(head, "strict", n_boot, seed, level),
+            "lenient": macro_score(head, "lenient", n_boot, seed, level),
         }
     out["by_mode"] = {}
     for mode in modes:
@@ -353,8 +390,8 @@ def score_results(
         if sub:
             out["by_mode"][mode] = {
                 "n_items": len(sub),
-                "strict": macro_accuracy(_records(sub, "strict"))["overall"],
-                "lenient": macro_accuracy(_records(sub, "lenient"))["overall"],
+                "strict": macro_accuracy(_records(sub, key_strict))["overall"],
+                "lenient": macro_accuracy(_records(sub, key_lenient))["overall"],
             }
     out["variants"] = {}
     by_variant: dict[str, list[ItemResult]] = defaultdict(list)
@@ -365,9 +402,9 @@ def score_results(
         out["variants"][variant] = {
             "n_items": len(rs),
             "predicted": sum(r.predicted for r in rs),
-            "strict": macro_score(rs, "strict", n_boot, seed, level),
-            "lenient": macro_accuracy(_records(rs, "lenient"))["overall"],
-            "constant_letter": constant_letter_baseline(rs)["overall"],
+            "strict": macro_score(rs, key_strict, n_boot, seed, level),
+            "lenient": macro_accuracy(_records(rs, key_lenient))["overall"],
+            "constant_letter": 0.0 if circular else constant_letter_baseline(rs)["overall"],
         }
     apart = [
         r
@@ -375,7 +412,7 @@ def score_results(
         if not vs.question_spec(r.item.question_id).in_analysis and r.item.variant == "base"
     ]
     out["excluded_from_analysis"] = (
-        {"n_items": len(apart), "question_id": macro_accuracy(_records(apart, "strict"))["question_id"]}
+        {"n_items": len(apart), "question_id": macro_accuracy(_records(apart, key_strict))["question_id"]}
         if apart
         else {"n_items": 0, "question_id": {}}
     )
@@ -406,6 +443,7 @@ def score_run(
         "set_dir": str(set_dir),
         "answerer": manifest.get("answerer"),
         "model": manifest.get("model"),
+        "weights": (manifest.get("model") or {}).get("weights"),
         "question_set_sha256": manifest.get("question_set_sha256"),
         **scores,
     }

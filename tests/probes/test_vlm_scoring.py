@@ -74,19 +74,22 @@ def test_macro_aggregation_coverage_and_baselines_by_hand(tmp_path: Path) -> Non
     }
     assert s["strict"]["n_sequences"] == 3
     # constant letter: answers A B C D A A; "A everywhere" -> mass .25, density 0, distance 1 -> .5625
-    cl = s["baselines"]["constant_letter"]
+    cl = s["baseline_details"]["constant_letter"]
     assert cl["letter"] == "A" and cl["overall"] == 0.5625 and cl["best_share"] == 0.5
     assert cl["macro_per_letter"] == {"A": 0.5625, "B": 0.0625, "C": 0.125, "D": 0.25}
-    assert s["baselines"]["chance"]["overall"] == 0.25
-    assert s["baselines"]["text_prior"]["abstained"] == 6  # no question text repeats across sequences
-    assert s["baselines"]["text_prior"]["overall"] == 0.25
+    assert cl["category_best"] == {"material_understanding": 0.5, "spatial_reasoning": 1.0}  # D there, A here
+    assert s["baseline_details"]["text_prior"]["abstained"] == 6  # no question text repeats across sequences
+    assert s["baselines"] == {"chance": 0.25, "constant_A": 0.5625, "constant_B": 0.0625, "constant_C": 0.125,
+                              "constant_D": 0.25, "prior": 0.25}  # fmt: skip
+    assert s["best_trivial"] == {"name": "constant_A", "overall": 0.5625}  # beats this model's 0.4375
+    assert s["items"] == 6 and s["extracted_share"] == 0.8 and s["circular"] is False
     # the variant and the excluded id are reported apart, never in the headline
     assert (
         s["variants"]["roi_masked"]["strict"]["overall"] == 0.0
         and s["variants"]["roi_masked"]["n_items"] == 1
     )
     assert s["excluded_from_analysis"] == {"n_items": 1, "question_id": {OCCLUSION: 1.0}}
-    assert s["circular"] is None and s["by_mode"]["single"]["strict"] == 0.4375
+    assert s["rotation0"] is None and s["by_mode"]["single"]["strict"] == 0.4375
     assert json.loads((run / "scores.json").read_text())["strict"]["overall"] == 0.4375
 
 
@@ -154,9 +157,9 @@ def test_circular_evaluation_needs_all_four_rotations(tmp_path: Path) -> None:
         **{("z/single", r): ("C" if r != 2 else "D") for r in range(4)},
     }  # wrong in rotation 2
     s = score_run(write_run(tmp_path / "run", set_dir, preds, circular=True), n_boot=0)
-    assert s["strict"]["overall"] == 1.0  # rotation 0 alone: the paper's number
-    assert s["circular"]["strict"]["overall"] == pytest.approx(1 / 3)
-    assert s["circular"]["chance"] == 0.25**4 and s["protocol"]["circular"] is True
+    assert s["circular"] is True and s["strict"]["overall"] == pytest.approx(1 / 3)  # x only
+    assert s["rotation0"]["strict"]["overall"] == 1.0  # rotation 0 alone: the paper's number, apart
+    assert s["baselines"]["chance"] == 0.25**4 and s["baselines"]["constant_A"] == 0.0
 
 
 def test_bad_runs_are_refused_with_the_file_and_key(tmp_path: Path) -> None:

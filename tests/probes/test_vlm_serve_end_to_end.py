@@ -102,6 +102,8 @@ def test_served_answers_are_scored_and_reported(tmp_path: Path) -> None:
     scores = score_run(run, n_boot=100)
     assert scores["strict"]["overall"] == 1.0 and scores["strict"]["ci"]["overall"] == [1.0, 1.0]
     assert scores["coverage"]["items"] == 8 and scores["coverage"]["missing"] == 0
-    assert scores["baselines"]["constant_letter"]["best_share"] == 0.25  # letters 0, 3, 2, 1, ... balanced
+    assert (
+        scores["baseline_details"]["constant_letter"]["best_share"] == 0.25
+    )  # letters 0, 3, 2, 1, ... balanced
     assert report_main([str(run), "--out", str(tmp_path / "report"), "--n-boot", "50"]) == 0
     assert "| openai-stub | 8 | 8/8 | 1.000 |" in (tmp_path / "report" / "report.md").read_text()

@@ -102,24 +102,30 @@ def write_report(runs: Sequence[Run], out: Path, tables: Sequence[Table]) -> dic
     intro = (
         "Strict extraction (a letter A-D alone or at the end of the reply) is the paper's number; lenient "
         "(option text matched) is reported apart. Missing predictions count as wrong. Intervals: 95 % "
-        "bootstrap over sequences."
+        "bootstrap over sequences. Rule `circular`: the run asked every item four times with its options rotated "
+        "and an item is right only if all four are (the rotation-0 number, the paper's, is `rotation0` in "
+        "summary.json)."
     )
-    header = "| model | items | coverage | strict | 95 % CI | lenient | best constant letter | text prior | weights |"
-    parts = ["# VLM evaluation report", "", intro, "", header, "|---|---|---|---|---|---|---|---|---|"]
+    header = (
+        "| model | items | coverage | strict | 95 % CI | lenient | best constant letter | text prior | weights "
+        "| rule |"
+    )
+    parts = ["# VLM evaluation report", "", intro, "", header, "|---|---|---|---|---|---|---|---|---|---|"]
     summary: dict[str, Any] = {}
     for run in runs:
         s = run.scores
         ci = (s["strict"].get("ci") or {}).get("overall")
         cov = s["coverage"]
         weights = (run.manifest.get("model") or {}).get("weights", "?")
-        prior = s["baselines"]["text_prior"].get("overall")
+        details = s["baseline_details"]
+        prior = details["text_prior"].get("overall")
         parts.append(
             f"| {run.label} | {cov['items']} | {cov['predicted']}/{cov['items']} | {s['strict']['overall']:.3f} | "
             + (f"[{ci[0]:.3f}, {ci[1]:.3f}]" if ci else "–")
-            + f" | {s['lenient']['overall']:.3f} | {s['baselines']['constant_letter']['overall']:.3f} "
-            f"({s['baselines']['constant_letter']['letter']}) | "
+            + f" | {s['lenient']['overall']:.3f} | {details['constant_letter']['overall']:.3f} "
+            f"({details['constant_letter']['letter'] or '–'}) | "
             + ("–" if prior is None else f"{prior:.3f}")
-            + f" | {weights} |"
+            + f" | {weights} | {'circular' if s['circular'] else 'rotation 0'} |"
         )
         summary[run.label] = {
             "run_dir": str(run.run_dir),
@@ -129,11 +135,13 @@ def write_report(runs: Sequence[Run], out: Path, tables: Sequence[Table]) -> dic
             "coverage": cov,
             "params_b": run.params_b,
             "baselines": {
-                "chance": 0.25,
-                "constant_letter": s["baselines"]["constant_letter"]["overall"],
+                "chance": details["chance"],
+                "constant_letter": details["constant_letter"]["overall"],
                 "text_prior": prior,
             },
-            "circular": None if s["circular"] is None else s["circular"]["strict"]["overall"],
+            "best_trivial": s["best_trivial"],
+            "circular": s["circular"],
+            "rotation0": None if s["rotation0"] is None else s["rotation0"]["strict"]["overall"],
         }
     parts.append("")
     files: list[str] = []

@@ -96,7 +96,7 @@ def per_category(runs: Sequence[Run]) -> Table:
     present = sorted({c for run in runs for c in run.scores["strict"]["category"]})
     plot: dict[str, Any] = {"models": [], "categories": present, "acc": {}, "ci": {}, "baselines": {}}
     for run in runs:
-        s, b = run.scores["strict"], run.scores["baselines"]
+        s, b = run.scores["strict"], run.scores["baseline_details"]
         n_cat: dict[str, int] = defaultdict(int)
         for r in scoped(run):
             n_cat[r.item.category] += 1
@@ -113,7 +113,7 @@ def per_category(runs: Sequence[Run]) -> Table:
                     lo,
                     hi,
                     run.scores["lenient"]["category"][cat],
-                    b["chance"]["overall"],
+                    b["chance"],
                     b["constant_letter"]["category_best"][cat],
                     prior.get(cat),
                 ]
@@ -128,7 +128,7 @@ def per_category(runs: Sequence[Run]) -> Table:
                 lo,
                 hi,
                 run.scores["lenient"]["overall"],
-                b["chance"]["overall"],
+                b["chance"],
                 b["constant_letter"]["overall"],
                 b["text_prior"].get("overall"),
             ]
@@ -227,7 +227,7 @@ def by_model_size(runs: Sequence[Run], edges: Sequence[float] = DEFAULT_SIZE_EDG
                 r.label,
                 r.params_b,
                 r.scores["strict"]["overall"],
-                r.scores["baselines"]["constant_letter"]["overall"],
+                r.scores["baseline_details"]["constant_letter"]["overall"],
             )
         )
     t.plot = {"points": points}
@@ -236,9 +236,9 @@ def by_model_size(runs: Sequence[Run], edges: Sequence[float] = DEFAULT_SIZE_EDG
 
 # -- bins over item meta ----------------------------------------------------------------------------------
 def _micro_with_ci(rs: Sequence[ItemResult], n_boot: int, seed: int) -> tuple[float, list[float] | None, int]:
-    table = build_table((r.item.sequence_id, "all", "all", "all", float(r.strict)) for r in rs)
+    table = build_table((r.item.sequence_id, "all", "all", "all", float(r.right)) for r in rs)
     ci = bootstrap_ci(table, n_boot, seed)["overall"] if n_boot else None
-    return sum(r.strict for r in rs) / len(rs), ci, len(table.sequences)
+    return sum(r.right for r in rs) / len(rs), ci, len(table.sequences)
 
 
 def _best_letter_share(rs: Sequence[ItemResult]) -> float:
@@ -324,8 +324,8 @@ def paired_delta(
     bs, vs_, c = np.zeros(len(seqs)), np.zeros(len(seqs)), np.zeros(len(seqs))
     for b, v in pairs:
         i = k[b.item.sequence_id]
-        bs[i] += b.strict
-        vs_[i] += v.strict
+        bs[i] += b.right
+        vs_[i] += v.right
         c[i] += 1
     base_acc, var_acc = bs.sum() / c.sum(), vs_.sum() / c.sum()
     ci = None

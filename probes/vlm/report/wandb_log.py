@@ -33,7 +33,7 @@ def log_report(
     )
     try:
         for label, s in summary.items():
-            for key in ("strict", "lenient", "circular"):
+            for key in ("strict", "lenient", "rotation0"):
                 if s.get(key) is not None:
                     run.summary[f"{label}/{key}"] = s[key]
             run.summary[f"{label}/constant_letter"] = s["baselines"]["constant_letter"]
