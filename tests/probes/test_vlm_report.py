@@ -234,3 +234,26 @@ def test_wandb_offline_logs_the_report(runs_dir: Path, monkeypatch: pytest.Monke
     )
     runs = list((out / "wandb").glob("offline-run-*"))
     assert len(runs) == 1 and list(runs[0].glob("*.wandb"))
+
+
+def test_a_lone_circular_run_without_meta_says_not_enough(tmp_path: Path) -> None:
+    items = [item(f"x{k}/single", f"s{k}", MASS) for k in range(4)]
+    set_dir = write_set(tmp_path / "vqa" / "test", items, {it.idx: "B" for it in items})
+    # x0 right in all rotations, x1 wrong in rotation 3, x2 and x3 wrong in rotation 0
+    preds = {
+        (f"x{k}/single", r): ("B" if (k == 0 or (k == 1 and r < 3)) else "C")
+        for k in range(4)
+        for r in range(4)
+    }
+    write_run(tmp_path / "runs" / "solo", set_dir, preds, answerer="solo", circular=True)
+    [run] = load_runs([tmp_path / "runs"], n_boot=0)
+    assert run.scores["strict"]["overall"] == 0.25 and run.scores["rotation0"]["strict"]["overall"] == 0.5
+    tables = {t.name: t for t in build_tables([run], None, n_boot=0)}
+    pc = {r[1]: r for r in tables["per_category"].rows}
+    assert (
+        pc["overall"][3] == 0.25 and pc["overall"][7] == 0.25**4 and pc["overall"][8] == 0.0
+    )  # circular rule
+    for name in ("by_young_modulus", "by_model_rank", "by_model_size", "correlation", "delta_masked"):
+        assert tables[name].empty and "not enough" in tables[name].note, name
+    objs = tables["by_num_objects"].rows  # meta num_objects = 2 everywhere: one bin, circular correctness
+    assert [r[1:5] for r in objs] == [["2", 4, 4, 0.25]]
