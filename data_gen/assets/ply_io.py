@@ -133,10 +133,10 @@ def encode_gaussians(g: Gaussians, f_rest: ArrayLike | None = None) -> SplatPly:
 def decode_splats(ply: SplatPly) -> Gaussians:
     """Raw INRIA fields -> Gaussians (colour clipped to [0, 1], rotations normalised); f_rest dropped.
 
-    Normals: the file's ``nx ny nz`` where a row has length >= ``MIN_FILE_NORMAL`` (most 3DGS
-    trainers write zeros there), else the splat's shortest axis (sign arbitrary). The colour
-    (degree-0 SH) becomes the albedo; the captured light baked into it stays (see
-    ``data_gen.render.shading`` for how captured scenes are lit).
+    Normals: the file's ``nx ny nz`` when every row has length >= ``MIN_FILE_NORMAL`` (oriented);
+    otherwise none are set (most 3DGS trainers write zeros) and ``Gaussians.surface_normals`` gives
+    each splat's shortest axis, of unknown sign (lit two-sided, ``data_gen.render.shading``). The
+    colour (degree-0 SH) becomes the albedo; the light baked into a capture stays in it.
     """
     q = ply.rotations_wxyz.astype(np.float64)
     norm = np.linalg.norm(q, axis=1, keepdims=True)
@@ -153,10 +153,9 @@ def decode_splats(ply: SplatPly) -> Gaussians:
         opacities=opac,
     )
     given = ply.normals.astype(np.float64)
-    use_file = np.linalg.norm(given, axis=1) >= MIN_FILE_NORMAL
-    normals = g.surface_normals().astype(np.float64)
-    normals[use_file] = given[use_file]
-    return dataclasses.replace(g, normals=normals)
+    if len(given) and bool((np.linalg.norm(given, axis=1) >= MIN_FILE_NORMAL).all()):
+        return dataclasses.replace(g, normals=given)
+    return g
 
 
 # --------------------------------------------------------------------------- #
