@@ -121,7 +121,7 @@ def encode_gaussians(g: Gaussians, f_rest: ArrayLike | None = None) -> SplatPly:
     op = np.clip(g.opacities.astype(np.float64), OPACITY_EPS, 1.0 - OPACITY_EPS)
     return SplatPly(
         positions=g.means_m,
-        normals=np.zeros((n, 3), np.float32) if g.normals is None else g.normals,
+        normals=np.zeros((n, 3), np.float32) if g.normals is None else g.normals.copy(),
         f_dc=(g.colors_rgb.astype(np.float64) - 0.5) / SH_C0,
         f_rest=rest,
         opacity_logit=np.log(op / (1.0 - op)),
