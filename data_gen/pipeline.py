@@ -50,7 +50,7 @@ from data_gen.display_names import color_name, display_names
 from data_gen.gaussians import Gaussians, deform_normals
 from data_gen.object_boxes import oriented_box
 from data_gen.render.labels import LabelRasterizer, gather_labels
-from data_gen.render.lighting import SceneLighting, largest_extent_m
+from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent_m
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.scenario import Scenario
 from data_gen.sim.contact_points import SurfaceSamples
@@ -123,10 +123,14 @@ class RenderSettings:
     """Side of the square shadow map, px."""
     shadow_bias_m: float
     """Constant depth bias of the shadow test, m (a slope-scaled term is added, ``render.shadow_map``)."""
+    shadow_test: str
+    """``pixel`` (each pixel's surface point, two RGB passes) or ``splat`` (each splat's centre, one pass)."""
 
     def __post_init__(self) -> None:
         if int(self.shadow_map_px) < 8:
             raise ValueError(f"render.shadow_map_px must be >= 8 px, got {self.shadow_map_px}")
+        if self.shadow_test not in SHADOW_TESTS:
+            raise ValueError(f"render.shadow_test must be one of {SHADOW_TESTS}, got {self.shadow_test!r}")
         if not (np.isfinite(self.shadow_bias_m) and self.shadow_bias_m >= 0.0):
             raise ValueError(f"render.shadow_bias_m must be a finite distance >= 0 m, got {self.shadow_bias_m}")
 
@@ -297,7 +301,7 @@ def scene_lighting(layout: SceneLayout, settings: RenderSettings, objects: list[
     if not settings.lighting:
         return None
     lighting = SceneLighting(layout.light, settings.shadows, settings.shadow_map_px, settings.shadow_bias_m,
-                             settings.device, settings.num_threads)
+                             settings.device, settings.num_threads, settings.shadow_test)
     points = [np.zeros((0, 3))]
     radius = 0.0
     if layout.splats is None and (scene_g.part_ids > 0).any():
@@ -367,12 +371,12 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
             stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]
         g = Gaussians(means_m=positions[t], scales_m=scales, rotations_wxyz=rotations, colors_rgb=colors,
                       opacities=opac, normals=normals)
-        lit = g if lighting is None else Gaussians(
-            means_m=g.means_m, scales_m=g.scales_m, rotations_wxyz=g.rotations_wxyz,
-            colors_rgb=lighting.colors(g, w2c[t], casters, prelit, two_sided), opacities=g.opacities)
-        rgb, _ = rgb_r.render(lit, K, w2c[t], background_rgb=BACKGROUND_RGB)
-        maps[schema.RGB][t] = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
         index, depth = lab_r.render(g, K, w2c[t])
+        if lighting is None:
+            rgb, _ = rgb_r.render(g, K, w2c[t], background_rgb=BACKGROUND_RGB)
+        else:
+            rgb = lighting.render_rgb(rgb_r, g, K, w2c[t], index, depth, casters, prelit, two_sided, BACKGROUND_RGB)
+        maps[schema.RGB][t] = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
         index_all[t] = index
         maps[schema.DEPTH][t] = depth
         ids = gather_labels(index, instance)

@@ -7,6 +7,13 @@ all frames, and per frame turns the frame's Gaussians (albedo + normals) into th
 colours the RGB rasterizer composites. The label maps are rendered from the same
 Gaussians and never read colours, so lighting cannot change them.
 
+Shadow test (``shadow_test``): ``"pixel"`` (default) looks up every pixel's
+surface point (label depth map, with the label winner's normal for the slope
+bias) in the shadow map and composites two RGB passes, rgb = ambient image +
+visibility x direct image: shadows as sharp as the shadow map, twice the RGB cost.
+``"splat"`` looks up each splat's centre and composites one pass: cheaper, but a
+shadow edge is as coarse as the receiving splats (2.5 cm floor grid by default).
+
 Who casts and who receives (``casters`` / ``prelit`` masks, chosen by the pipeline):
 every splat receives; objects and a procedural layout's boxes cast (the floor
 plane z = 0 cannot occlude anything above it); in a captured scene only the
@@ -20,10 +27,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data_gen.gaussians import Gaussians
-from data_gen.render.shading import shade
+from data_gen.render.rgb import RgbRasterizer
+from data_gen.render.shading import shade, shade_parts
 from data_gen.render.shadow_map import LightView, ShadowMapper, fit_light_view
 from data_gen.scene_light import SceneLight
 from newtphys.geometry import camera_pose
+
+
+#: Where shadows are tested: every pixel's surface point, or every splat's centre.
+SHADOW_TESTS = ("pixel", "splat")
 
 
 class SceneLighting:
@@ -37,8 +49,12 @@ class SceneLighting:
         shadow_bias_m: float,
         device: str = "cpu",
         num_threads: int = 2,
+        shadow_test: str = "pixel",
     ) -> None:
+        if shadow_test not in SHADOW_TESTS:
+            raise ValueError(f"shadow_test must be one of {SHADOW_TESTS}, got {shadow_test!r}")
         self.light = light
+        self.shadow_test = shadow_test
         self.mapper = ShadowMapper(shadow_map_px, shadow_bias_m, device, num_threads) if shadows else None
         self.view: LightView | None = None
 
@@ -63,17 +79,77 @@ class SceneLighting:
         """
         normals = gaussians.surface_normals()
         visibility = None
-        if self.mapper is not None:
-            mask = np.asarray(casters, bool)
-            if mask.shape != (len(gaussians),):
-                raise ValueError(f"casters must have shape ({len(gaussians)},), got {mask.shape}")
-            if self.view is None:
-                self.fit(gaussians.means_m[mask], _largest_extent_m(gaussians, mask))
-            assert self.view is not None
-            self.mapper.render(gaussians.subset(mask), self.view)
+        if self._render_shadow_map(gaussians, casters):
+            assert self.mapper is not None
             visibility = self.mapper.visibility(gaussians.means_m, normals, self.light.direction)
         centre, _ = camera_pose(np.asarray(world_to_camera, np.float64))
         return shade(gaussians.colors_rgb, normals, gaussians.means_m, centre, self.light, visibility, prelit, two_sided)
+
+    def render_rgb(
+        self,
+        rasterizer: RgbRasterizer,
+        gaussians: Gaussians,
+        K: ArrayLike,
+        world_to_camera: ArrayLike,
+        label_index: NDArray[np.int32],
+        label_depth_m: NDArray[np.float32],
+        casters: ArrayLike,
+        prelit: ArrayLike | None = None,
+        two_sided: ArrayLike | None = None,
+        background_rgb: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> NDArray[np.float32]:
+        """The lit RGB image (H, W, 3) float32 in [0, 1] of ``gaussians`` (albedo + normals).
+
+        ``label_index`` / ``label_depth_m`` are the label rasterizer's maps of the same frame (surface
+        depth): the pixel test places each pixel on its nearest covering splat. Masks as in :meth:`colors`.
+        """
+        if self.mapper is None or self.shadow_test == "splat":
+            colors = self.colors(gaussians, world_to_camera, casters, prelit, two_sided)
+            lit = _with_colors(gaussians, colors)
+            return rasterizer.render(lit, K, world_to_camera, background_rgb)[0]
+        normals = gaussians.surface_normals()
+        centre, _ = camera_pose(np.asarray(world_to_camera, np.float64))
+        ambient, direct = shade_parts(gaussians.colors_rgb, normals, gaussians.means_m, centre, self.light,
+                                      prelit, two_sided)
+        base = rasterizer.render(_with_colors(gaussians, ambient), K, world_to_camera, background_rgb)[0]
+        key = rasterizer.render(_with_colors(gaussians, direct), K, world_to_camera, (0.0, 0.0, 0.0))[0]
+        hit = label_index >= 0
+        visibility = np.ones(label_index.shape, np.float32)
+        if self._render_shadow_map(gaussians, casters) and hit.any():
+            assert self.mapper is not None
+            points = _pixel_points(K, world_to_camera, label_depth_m)[hit]
+            visibility[hit] = self.mapper.visibility(points, normals[label_index[hit]], self.light.direction)
+        return np.clip(base + visibility[..., None] * key, 0.0, 1.0)
+
+    def _render_shadow_map(self, gaussians: Gaussians, casters: ArrayLike) -> bool:
+        """Draw the casters into the shadow map (fitting the view on first use); False without shadows."""
+        if self.mapper is None:
+            return False
+        mask = np.asarray(casters, bool)
+        if mask.shape != (len(gaussians),):
+            raise ValueError(f"casters must have shape ({len(gaussians)},), got {mask.shape}")
+        if self.view is None:
+            self.fit(gaussians.means_m[mask], _largest_extent_m(gaussians, mask))
+        assert self.view is not None
+        self.mapper.render(gaussians.subset(mask), self.view)
+        return True
+
+
+def _with_colors(gaussians: Gaussians, colors: NDArray[np.float32]) -> Gaussians:
+    """The same splats with other colours, for the RGB rasterizer (normals and part ids are not needed there)."""
+    return Gaussians(means_m=gaussians.means_m, scales_m=gaussians.scales_m, covariances_m2=gaussians.covariances_m2,
+                     rotations_wxyz=gaussians.rotations_wxyz, colors_rgb=colors, opacities=gaussians.opacities)
+
+
+def _pixel_points(K: ArrayLike, world_to_camera: ArrayLike, depth_m: NDArray[np.float32]) -> NDArray[np.float64]:
+    """World points (H, W, 3), m, of every pixel centre at its camera depth ``depth_m`` (z along the axis)."""
+    k = np.asarray(K, np.float64)
+    m = np.asarray(world_to_camera, np.float64)
+    h, w = depth_m.shape
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    z = depth_m.astype(np.float64)
+    cam = np.stack([(u - k[0, 2]) / k[0, 0] * z, (v - k[1, 2]) / k[1, 1] * z, z], axis=-1)
+    return (cam - m[:3, 3]) @ m[:3, :3]
 
 
 def _largest_extent_m(gaussians: Gaussians, mask: NDArray[np.bool_]) -> float:

@@ -22,8 +22,9 @@ light (``data_gen.scene_light.SceneLight``) and its shadow visibility ``v`` in
   unshadowed light, (ambient + intensity color (n . l) v) / (ambient + intensity
   color (n . l)), which is exactly 1 where no inserted object shadows them.
 
-Shading is per splat (at its centre), not per pixel: cheap, and exact for the
-flat, pixel-sized splats the assets make.
+Shading (n . l) is per splat, at its centre: exact for flat splats. Shadow
+visibility is applied per splat (``shade``) or, through ``shade_parts``, per
+pixel (``data_gen.render.lighting``: rgb = ambient image + visibility x direct image).
 """
 
 from __future__ import annotations
@@ -44,6 +45,46 @@ def camera_facing(normals: ArrayLike, centres_m: ArrayLike, camera_centre_m: Arr
     return np.where(flip[:, None], -n, n)
 
 
+def shade_parts(
+    albedo_rgb: ArrayLike,
+    normals: ArrayLike,
+    centres_m: ArrayLike,
+    camera_centre_m: ArrayLike,
+    light: SceneLight,
+    prelit: ArrayLike | None = None,
+    two_sided: ArrayLike | None = None,
+) -> tuple[F32, F32]:
+    """(ambient part, direct part), each (n, 3) float32 clipped to [0, 1]: the lit colour is
+    ambient + visibility x direct, so shadows can be applied per splat or per pixel.
+
+    Plain splats: ambient = albedo x ambient, direct = albedo x intensity x color x max(0, n . l).
+    Prelit splats: both divided by (ambient + intensity x color x max(0, n . l)) (1 where that is 0: all
+    ambient), so an unshadowed prelit splat keeps its colour. ``prelit`` / ``two_sided`` as in :func:`shade`.
+    """
+    albedo = np.asarray(albedo_rgb, np.float64)
+    n = len(albedo)
+    facing = np.asarray(normals, np.float64)
+    if two_sided is not None:
+        flip = np.asarray(two_sided, bool)
+        if flip.shape != (n,):
+            raise ValueError(f"two_sided must have shape ({n},), got {flip.shape}")
+        facing = np.where(flip[:, None], camera_facing(facing, centres_m, camera_centre_m), facing)
+    cos = np.maximum(facing @ np.asarray(light.direction, np.float64), 0.0)  # (n,)
+    key = light.intensity * cos[:, None] * np.asarray(light.color_rgb, np.float64)[None, :]  # (n, 3)
+    ambient = np.full((n, 3), light.ambient)
+    if prelit is not None:
+        mask = np.asarray(prelit, bool)
+        if mask.shape != (n,):
+            raise ValueError(f"prelit must have shape ({n},), got {mask.shape}")
+        total = light.ambient + key[mask]
+        ok = total > 0.0
+        safe = np.where(ok, total, 1.0)
+        ambient[mask] = np.where(ok, light.ambient / safe, 1.0)
+        key[mask] = np.where(ok, key[mask] / safe, 0.0)
+    parts = (np.clip(albedo * ambient, 0.0, 1.0), np.clip(albedo * key, 0.0, 1.0))
+    return parts[0].astype(np.float32), parts[1].astype(np.float32)
+
+
 def shade(
     albedo_rgb: ArrayLike,
     normals: ArrayLike,
@@ -60,25 +101,9 @@ def shade(
     splats whose colours already hold their light (None: none); ``two_sided`` (n,) bool marks splats
     whose normal sign is unknown and is turned to the camera (None: none).
     """
-    albedo = np.asarray(albedo_rgb, np.float64)
-    n = len(albedo)
+    ambient, direct = shade_parts(albedo_rgb, normals, centres_m, camera_centre_m, light, prelit, two_sided)
+    n = len(ambient)
     vis = np.ones(n) if visibility is None else np.asarray(visibility, np.float64)
     if vis.shape != (n,):
         raise ValueError(f"visibility must have shape ({n},), got {vis.shape}")
-    facing = np.asarray(normals, np.float64)
-    if two_sided is not None:
-        flip = np.asarray(two_sided, bool)
-        if flip.shape != (n,):
-            raise ValueError(f"two_sided must have shape ({n},), got {flip.shape}")
-        facing = np.where(flip[:, None], camera_facing(facing, centres_m, camera_centre_m), facing)
-    cos = np.maximum(facing @ np.asarray(light.direction, np.float64), 0.0)  # (n,)
-    key = light.intensity * cos[:, None] * np.asarray(light.color_rgb, np.float64)[None, :]  # (n, 3)
-    factor = light.ambient + key * vis[:, None]
-    if prelit is not None:
-        mask = np.asarray(prelit, bool)
-        if mask.shape != (n,):
-            raise ValueError(f"prelit must have shape ({n},), got {mask.shape}")
-        unshadowed = light.ambient + key[mask]
-        safe = np.where(unshadowed > 0.0, unshadowed, 1.0)
-        factor[mask] = np.where(unshadowed > 0.0, factor[mask] / safe, 1.0)
-    return np.clip(albedo * factor, 0.0, 1.0).astype(np.float32)
+    return np.clip(ambient + vis[:, None] * direct, 0.0, 1.0).astype(np.float32)
