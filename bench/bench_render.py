@@ -24,6 +24,18 @@ measured end to end.
     python bench/bench_render.py [--quick]
 
 Writes bench/results/render.json.
+
+``--lighting`` measures instead what one *frame* of a sequence costs at the paper's
+1000 x 562: RGB and every label map (``data_gen.pipeline.render_sequence``, skinning
+and gathers included) of a simulated ``drop`` scenario on the ``table`` layout
+(5 objects), unlit (``render.lighting=false``, the old behaviour), lit without
+shadows, and lit with shadows tested per splat and per pixel (the default), with
+the ratio to unlit. Seconds per frame = best of ``reps`` renders of the sequence /
+its frames (the light view fit and module loads included, after one warm-up render).
+
+    python bench/bench_render.py --lighting [--quick] [--device cuda]
+
+Writes bench/results/render_lighting.json (render_lighting_<device>.json off CPU).
 """
 
 from __future__ import annotations
@@ -118,10 +130,77 @@ def visible_count(g: Gaussians, K: np.ndarray, w2c: np.ndarray, side: int, alpha
     return int(project_gaussians(g, K, w2c, side, side, alpha_min=alpha_min)["visible"].sum())
 
 
+LIGHTING_MODES: dict[str, dict[str, object]] = {
+    "unlit": {"lighting": False},
+    "lit, no shadows": {"lighting": True, "shadows": False},
+    "lit + shadows (splat test)": {"lighting": True, "shadows": True, "shadow_test": "splat"},
+    "lit + shadows (pixel test, default)": {"lighting": True, "shadows": True, "shadow_test": "pixel"},
+}
+
+
+def lighting_main(quick: bool, device: str) -> None:
+    """Seconds per frame of RGB + every map at 1000 x 562 before / after lighting (see the module docstring)."""
+    import dataclasses
+
+    from data_gen.assets.registry import get_scene_layout
+    from data_gen.configs import render_settings, scenario_config
+    from data_gen.pipeline import build_objects, render_sequence, simulate
+    from data_gen.scenario import sample_scenario
+    from data_gen.sim.presets import load_preset
+
+    wp.config.quiet = True
+    wp.init()
+    load_start = os.getloadavg()
+    frames, reps, (h, w) = (2, 1, (281, 500)) if quick else (4, 2, (562, 1000))
+    cfg = scenario_config("drop", scenes=("table",), num_objects=(5, 5))
+    settings = dataclasses.replace(render_settings(), device=device)
+    scenario = sample_scenario(cfg, "bench-light", 7, "train", "earth", frames, 25.0, (h, w))
+    layout = get_scene_layout(scenario.scene)
+    objects = build_objects(scenario, settings)
+    result = simulate(scenario, objects, layout, load_preset("draft"))
+    n_gauss = None
+    rows = []
+    for name, changes in LIGHTING_MODES.items():  # loop over modes
+        run = dataclasses.replace(settings, **changes)
+        render_sequence(scenario, objects, layout, result, dataclasses.replace(run))  # warm-up (module loads)
+        best = float("inf")
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            maps, _, _ = render_sequence(scenario, objects, layout, result, run)
+            best = min(best, time.perf_counter() - t0)
+        n_gauss = n_gauss or int(sum(len(o.surface) for o in objects))
+        rows.append({"mode": name, "settings": changes, "seconds_per_frame": best / frames,
+                     "maps": len(maps)})
+    base = rows[0]["seconds_per_frame"]
+    for r in rows:
+        r["ratio_to_unlit"] = r["seconds_per_frame"] / base
+    print(f"RGB + {rows[0]['maps'] - 1} label maps per frame, {w}x{h}, {device}, table layout + 5 objects "
+          f"({n_gauss} object Gaussians, scene spacing {settings.scene_spacing_m} m), shadow map "
+          f"{settings.shadow_map_px} px; best of {reps} x {frames} frames")
+    print(f"{'mode':<38}{'s / frame':>12}{'x unlit':>10}")
+    for r in rows:
+        print(f"{r['mode']:<38}{r['seconds_per_frame']:>12.3f}{r['ratio_to_unlit']:>10.2f}")
+    out = RESULTS.with_name("render_lighting.json" if device == "cpu" else f"render_lighting_{device}.json")
+    meta = {"quick": quick, "device": device, "image_size": [h, w], "frames": frames, "reps": reps,
+            "scene": scenario.scene, "objects": len(objects), "object_gaussians": n_gauss,
+            "shadow_map_px": settings.shadow_map_px, "cpu_count": os.cpu_count(), "render_threads": settings.num_threads,
+            "load_average_at_start": load_start, "load_average_at_end": os.getloadavg(),
+            "platform": platform.platform(), "warp": wp.__version__, "torch": torch.__version__,
+            "note": "seconds_per_frame: best-of-reps wall time of render_sequence (RGB + every map, skinning and "
+                    "label gathers included) / frames; the machine is shared, see load_average_*."}
+    out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="small sizes, fewer repetitions")
+    ap.add_argument("--lighting", action="store_true", help="per-frame cost at 1000x562 before/after lighting")
+    ap.add_argument("--device", default="cpu", help="warp device of --lighting (cpu | cuda)")
     args = ap.parse_args()
+    if args.lighting:
+        lighting_main(args.quick, args.device)
+        return
     wp.config.quiet = True
     wp.init()
     load_start = os.getloadavg()

@@ -113,12 +113,12 @@ class SceneLighting:
                                       prelit, two_sided)
         base = rasterizer.render(_with_colors(gaussians, ambient), K, world_to_camera, background_rgb)[0]
         key = rasterizer.render(_with_colors(gaussians, direct), K, world_to_camera, (0.0, 0.0, 0.0))[0]
-        hit = label_index >= 0
-        visibility = np.ones(label_index.shape, np.float32)
-        if self._render_shadow_map(gaussians, casters) and hit.any():
+        if self._render_shadow_map(gaussians, casters):
             assert self.mapper is not None
-            points = _pixel_points(K, world_to_camera, label_depth_m)[hit]
-            visibility[hit] = self.mapper.visibility(points, normals[label_index[hit]], self.light.direction)
+            visibility = self.mapper.pixel_visibility(K, world_to_camera, label_index, label_depth_m, normals,
+                                                      self.light.direction)
+        else:
+            visibility = np.ones(label_index.shape, np.float32)
         return np.clip(base + visibility[..., None] * key, 0.0, 1.0)
 
     def _render_shadow_map(self, gaussians: Gaussians, casters: ArrayLike) -> bool:
@@ -139,17 +139,6 @@ def _with_colors(gaussians: Gaussians, colors: NDArray[np.float32]) -> Gaussians
     """The same splats with other colours, for the RGB rasterizer (normals and part ids are not needed there)."""
     return Gaussians(means_m=gaussians.means_m, scales_m=gaussians.scales_m, covariances_m2=gaussians.covariances_m2,
                      rotations_wxyz=gaussians.rotations_wxyz, colors_rgb=colors, opacities=gaussians.opacities)
-
-
-def _pixel_points(K: ArrayLike, world_to_camera: ArrayLike, depth_m: NDArray[np.float32]) -> NDArray[np.float64]:
-    """World points (H, W, 3), m, of every pixel centre at its camera depth ``depth_m`` (z along the axis)."""
-    k = np.asarray(K, np.float64)
-    m = np.asarray(world_to_camera, np.float64)
-    h, w = depth_m.shape
-    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    z = depth_m.astype(np.float64)
-    cam = np.stack([(u - k[0, 2]) / k[0, 0] * z, (v - k[1, 2]) / k[1, 1] * z, z], axis=-1)
-    return (cam - m[:3, 3]) @ m[:3, :3]
 
 
 def _largest_extent_m(gaussians: Gaussians, mask: NDArray[np.bool_]) -> float:
