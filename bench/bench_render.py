@@ -31,7 +31,8 @@ and gathers included) of a simulated ``drop`` scenario on the ``table`` layout
 (5 objects), unlit (``render.lighting=false``, the old behaviour), lit without
 shadows, and lit with shadows tested per splat and per pixel (the default), with
 the ratio to unlit. Seconds per frame = best of ``reps`` renders of the sequence /
-its frames (the light view fit and module loads included, after one warm-up render).
+its frames, wall and process CPU time (the light view fit included; modes
+interleaved in each rep, after one warm-up render of each).
 
     python bench/bench_render.py --lighting [--quick] [--device cuda]
 
@@ -151,35 +152,40 @@ def lighting_main(quick: bool, device: str) -> None:
     wp.config.quiet = True
     wp.init()
     load_start = os.getloadavg()
-    frames, reps, (h, w) = (2, 1, (281, 500)) if quick else (4, 2, (562, 1000))
+    frames, reps, (h, w) = (2, 1, (281, 500)) if quick else (4, 4, (562, 1000))
     cfg = scenario_config("drop", scenes=("table",), num_objects=(5, 5))
     settings = dataclasses.replace(render_settings(), device=device)
     scenario = sample_scenario(cfg, "bench-light", 7, "train", "earth", frames, 25.0, (h, w))
     layout = get_scene_layout(scenario.scene)
     objects = build_objects(scenario, settings)
     result = simulate(scenario, objects, layout, load_preset("draft"))
-    n_gauss = None
-    rows = []
-    for name, changes in LIGHTING_MODES.items():  # loop over modes
-        run = dataclasses.replace(settings, **changes)
-        render_sequence(scenario, objects, layout, result, dataclasses.replace(run))  # warm-up (module loads)
-        best = float("inf")
-        for _ in range(reps):
-            t0 = time.perf_counter()
+    n_gauss = int(sum(len(o.surface) for o in objects))
+    runs = {name: dataclasses.replace(settings, **changes) for name, changes in LIGHTING_MODES.items()}
+    for run in runs.values():  # warm-up (module loads)
+        render_sequence(scenario, objects, layout, result, run)
+    wall = {name: float("inf") for name in runs}
+    cpu = {name: float("inf") for name in runs}
+    n_maps = 0
+    for _ in range(reps):  # modes interleaved, so that load changes on the shared machine hit all of them
+        for name, run in runs.items():
+            t0, c0 = time.perf_counter(), time.process_time()
             maps, _, _ = render_sequence(scenario, objects, layout, result, run)
-            best = min(best, time.perf_counter() - t0)
-        n_gauss = n_gauss or int(sum(len(o.surface) for o in objects))
-        rows.append({"mode": name, "settings": changes, "seconds_per_frame": best / frames,
-                     "maps": len(maps)})
-    base = rows[0]["seconds_per_frame"]
+            wall[name] = min(wall[name], time.perf_counter() - t0)
+            cpu[name] = min(cpu[name], time.process_time() - c0)
+            n_maps = len(maps)
+    rows = [{"mode": name, "settings": LIGHTING_MODES[name], "seconds_per_frame": wall[name] / frames,
+             "cpu_seconds_per_frame": cpu[name] / frames, "maps": n_maps} for name in runs]
+    base, base_cpu = rows[0]["seconds_per_frame"], rows[0]["cpu_seconds_per_frame"]
     for r in rows:
         r["ratio_to_unlit"] = r["seconds_per_frame"] / base
+        r["cpu_ratio_to_unlit"] = r["cpu_seconds_per_frame"] / base_cpu
     print(f"RGB + {rows[0]['maps'] - 1} label maps per frame, {w}x{h}, {device}, table layout + 5 objects "
           f"({n_gauss} object Gaussians, scene spacing {settings.scene_spacing_m} m), shadow map "
           f"{settings.shadow_map_px} px; best of {reps} x {frames} frames")
-    print(f"{'mode':<38}{'s / frame':>12}{'x unlit':>10}")
+    print(f"{'mode':<38}{'s / frame':>12}{'x unlit':>10}{'CPU s / frame':>16}{'x unlit':>10}")
     for r in rows:
-        print(f"{r['mode']:<38}{r['seconds_per_frame']:>12.3f}{r['ratio_to_unlit']:>10.2f}")
+        print(f"{r['mode']:<38}{r['seconds_per_frame']:>12.3f}{r['ratio_to_unlit']:>10.2f}"
+              f"{r['cpu_seconds_per_frame']:>16.3f}{r['cpu_ratio_to_unlit']:>10.2f}")
     out = RESULTS.with_name("render_lighting.json" if device == "cpu" else f"render_lighting_{device}.json")
     meta = {"quick": quick, "device": device, "image_size": [h, w], "frames": frames, "reps": reps,
             "scene": scenario.scene, "objects": len(objects), "object_gaussians": n_gauss,
@@ -187,7 +193,8 @@ def lighting_main(quick: bool, device: str) -> None:
             "load_average_at_start": load_start, "load_average_at_end": os.getloadavg(),
             "platform": platform.platform(), "warp": wp.__version__, "torch": torch.__version__,
             "note": "seconds_per_frame: best-of-reps wall time of render_sequence (RGB + every map, skinning and "
-                    "label gathers included) / frames; the machine is shared, see load_average_*."}
+                    "label gathers included) / frames; cpu_seconds_per_frame: the same with process CPU time (all "
+                    "threads); modes interleaved per rep; the machine is shared, see load_average_*."}
     out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     print(f"wrote {out}")
 

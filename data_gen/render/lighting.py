@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data_gen.gaussians import Gaussians
 from data_gen.render.rgb import RgbRasterizer
-from data_gen.render.shading import shade, shade_parts
+from data_gen.render.shading import facing_normals, shade, shade_parts
 from data_gen.render.shadow_map import LightView, ShadowMapper, fit_light_view
 from data_gen.scene_light import SceneLight
 from newtphys.geometry import camera_pose
@@ -115,7 +115,8 @@ class SceneLighting:
         key = rasterizer.render(_with_colors(gaussians, direct), K, world_to_camera, (0.0, 0.0, 0.0))[0]
         if self._render_shadow_map(gaussians, casters):
             assert self.mapper is not None
-            visibility = self.mapper.pixel_visibility(K, world_to_camera, label_index, label_depth_m, normals,
+            facing = facing_normals(normals, gaussians.means_m, centre, two_sided)
+            visibility = self.mapper.pixel_visibility(K, world_to_camera, label_index, label_depth_m, facing,
                                                       self.light.direction)
         else:
             visibility = np.ones(label_index.shape, np.float32)

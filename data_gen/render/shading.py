@@ -45,6 +45,19 @@ def camera_facing(normals: ArrayLike, centres_m: ArrayLike, camera_centre_m: Arr
     return np.where(flip[:, None], -n, n)
 
 
+def facing_normals(
+    normals: ArrayLike, centres_m: ArrayLike, camera_centre_m: ArrayLike, two_sided: ArrayLike | None = None
+) -> NDArray[np.float64]:
+    """Unit normals (n, 3) as shading uses them: two-sided ones turned to the camera, the others as given."""
+    facing = np.asarray(normals, np.float64)
+    if two_sided is None:
+        return facing
+    flip = np.asarray(two_sided, bool)
+    if flip.shape != (len(facing),):
+        raise ValueError(f"two_sided must have shape ({len(facing)},), got {flip.shape}")
+    return np.where(flip[:, None], camera_facing(facing, centres_m, camera_centre_m), facing)
+
+
 def shade_parts(
     albedo_rgb: ArrayLike,
     normals: ArrayLike,
@@ -63,12 +76,7 @@ def shade_parts(
     """
     albedo = np.asarray(albedo_rgb, np.float64)
     n = len(albedo)
-    facing = np.asarray(normals, np.float64)
-    if two_sided is not None:
-        flip = np.asarray(two_sided, bool)
-        if flip.shape != (n,):
-            raise ValueError(f"two_sided must have shape ({n},), got {flip.shape}")
-        facing = np.where(flip[:, None], camera_facing(facing, centres_m, camera_centre_m), facing)
+    facing = facing_normals(normals, centres_m, camera_centre_m, two_sided)
     cos = np.maximum(facing @ np.asarray(light.direction, np.float64), 0.0)  # (n,)
     key = light.intensity * cos[:, None] * np.asarray(light.color_rgb, np.float64)[None, :]  # (n, 3)
     ambient = np.full((n, 3), light.ambient)

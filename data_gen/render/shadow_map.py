@@ -14,16 +14,24 @@ Method (one map per frame):
    (``data_gen.render.labels``, binarised coverage at alpha 0.5, nearest splat wins)
    draws the *casters* from the light; the depth is where each texel's ray meets
    the winning splat (``depth_mode="surface"``: the ray-plane hit of a flat splat).
-3. **Per-splat lookup** (:meth:`ShadowMapper.visibility`): each receiver's centre
-   is projected into the map; it is lit by a texel when its light-space depth is at
-   most the texel's depth + bias (or the texel is empty). Percentage-closer
-   filtering over the 3 x 3 texels around it gives the visibility in [0, 1]
-   (0, 1/9, ..., 1), which softens the edge over about one texel.
+3. **Lookup** (warp kernels): a receiver point — each pixel's surface point (its
+   camera depth along the pixel ray, :meth:`ShadowMapper.pixel_visibility`) or each
+   splat's centre (:meth:`ShadowMapper.visibility`) — is projected into the map; it
+   is lit by a texel when its light-space depth is at most the texel's depth + bias
+   (or the texel is empty). Percentage-closer filtering over the 3 x 3 texels
+   around it gives the visibility in [0, 1] (0, 1/9, ..., 1), which softens the
+   edge over about one texel.
 
-Bias: ``bias_m`` + ``SLOPE_TEXELS`` x texel size at the receiver x tan(angle between
+Bias: the receiver point is first moved ``bias_m`` along its normal (turned to the
+light's side: a *normal offset*, which lifts it out from under the few millimetres
+a neighbouring face's splats reach past a shared edge), then compared with a depth
+bias of ``bias_m`` + ``SLOPE_TEXELS`` x texel size at the receiver x tan(angle between
 its normal and the light), the tangent capped at ``MAX_SLOPE``: a tilted lit surface
 changes depth across the filter's reach by that much, so it does not shadow itself;
-surfaces nearly edge-on to the light get no key light anyway (n . l ~ 0).
+surfaces nearly edge-on to the light get no key light anyway (n . l ~ 0). In the
+pixel test, a pixel whose nearest splat faces away from the light counts as lit
+(its own direct light is 0; what direct light the pixel has comes from overlapping
+neighbours).
 """
 
 from __future__ import annotations
@@ -104,7 +112,8 @@ class ShadowParams:
 @wp.func
 def light_visibility(x: wp.vec3, n: wp.vec3, p: ShadowParams, shadow_depth: wp.array(dtype=float)) -> float:
     """Share of the 3 x 3 texels around world point x whose caster depth does not hide it (1 outside the map)."""
-    q = p.rotation * x + p.translation
+    side = wp.where(wp.dot(n, p.direction) < 0.0, -1.0, 1.0)
+    q = p.rotation * (x + (side * p.bias_m) * n) + p.translation  # normal offset, towards the light's side
     z = q[2]
     if z <= 1e-9:
         return 1.0
@@ -163,10 +172,17 @@ def pixel_visibility_kernel(
     shadow_depth: wp.array(dtype=float),
     visibility: wp.array(dtype=float),
 ):
-    """Thread per pixel: its surface point (camera depth along the pixel ray, the label winner's normal)."""
+    """Thread per pixel: its surface point (camera depth along the pixel ray, the label winner's normal).
+
+    A winner turned away from the light (n . l <= 0) adds no direct light of its own: the pixel's direct
+    light comes from neighbours it overlaps (e.g. a face's splats reaching past an edge over the next
+    face), whose shadow it cannot tell, so it counts as lit (its own direct term is 0 anyway)."""
     k = wp.tid()
     i = index[k]
     if i < 0:
+        visibility[k] = 1.0
+        return
+    if wp.dot(normals[i], params.direction) <= 0.0:
         visibility[k] = 1.0
         return
     x = k % frame.width
