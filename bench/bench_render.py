@@ -36,7 +36,8 @@ interleaved in each rep, after one warm-up render of each).
 
     python bench/bench_render.py --lighting [--quick] [--device cuda]
 
-Writes bench/results/render_lighting.json (render_lighting_<device>.json off CPU).
+Writes bench/results/render_lighting.json (render_lighting_<device>.json off CPU) and a
+PNG of the last frame in each mode, top to bottom.
 """
 
 from __future__ import annotations
@@ -166,6 +167,7 @@ def lighting_main(quick: bool, device: str) -> None:
     wall = {name: float("inf") for name in runs}
     cpu = {name: float("inf") for name in runs}
     n_maps = 0
+    last_rgb: dict[str, np.ndarray] = {}
     for _ in range(reps):  # modes interleaved, so that load changes on the shared machine hit all of them
         for name, run in runs.items():
             t0, c0 = time.perf_counter(), time.process_time()
@@ -173,6 +175,7 @@ def lighting_main(quick: bool, device: str) -> None:
             wall[name] = min(wall[name], time.perf_counter() - t0)
             cpu[name] = min(cpu[name], time.process_time() - c0)
             n_maps = len(maps)
+            last_rgb[name] = maps["rgb"][-1]
     rows = [{"mode": name, "settings": LIGHTING_MODES[name], "seconds_per_frame": wall[name] / frames,
              "cpu_seconds_per_frame": cpu[name] / frames, "maps": n_maps} for name in runs]
     base, base_cpu = rows[0]["seconds_per_frame"], rows[0]["cpu_seconds_per_frame"]
@@ -196,7 +199,10 @@ def lighting_main(quick: bool, device: str) -> None:
                     "label gathers included) / frames; cpu_seconds_per_frame: the same with process CPU time (all "
                     "threads); modes interleaved per rep; the machine is shared, see load_average_*."}
     out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
-    print(f"wrote {out}")
+    from PIL import Image
+
+    Image.fromarray(np.concatenate([last_rgb[name] for name in runs], axis=0)).save(out.with_suffix(".png"))
+    print(f"wrote {out} and {out.with_suffix('.png').name} (last frame of each mode, top to bottom)")
 
 
 def main() -> None:

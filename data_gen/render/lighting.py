@@ -11,6 +11,8 @@ Shadow test (``shadow_test``): ``"pixel"`` (default) looks up every pixel's
 surface point (label depth map, with the label winner's normal for the slope
 bias) in the shadow map and composites two RGB passes, rgb = ambient image +
 visibility x direct image: shadows as sharp as the shadow map, twice the RGB cost.
+A pixel no splat covers (an object's soft rim) takes the visibility of its nearest
+covered pixel.
 ``"splat"`` looks up each splat's centre and composites one pass: cheaper, but a
 shadow edge is as coarse as the receiving splats (2.5 cm floor grid by default).
 
@@ -24,6 +26,7 @@ own light never came from) and the captured splats are ``prelit``.
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 from numpy.typing import ArrayLike, NDArray
 
 from data_gen.gaussians import Gaussians
@@ -118,6 +121,7 @@ class SceneLighting:
             facing = facing_normals(normals, gaussians.means_m, centre, two_sided)
             visibility = self.mapper.pixel_visibility(K, world_to_camera, label_index, label_depth_m, facing,
                                                       self.light.direction)
+            visibility = _fill_uncovered(visibility, label_index < 0)
         else:
             visibility = np.ones(label_index.shape, np.float32)
         return np.clip(base + visibility[..., None] * key, 0.0, 1.0)
@@ -134,6 +138,16 @@ class SceneLighting:
         assert self.view is not None
         self.mapper.render(gaussians.subset(mask), self.view)
         return True
+
+
+def _fill_uncovered(visibility: NDArray[np.float32], uncovered: NDArray[np.bool_]) -> NDArray[np.float32]:
+    """Visibility (H, W) where pixels no splat covers (label index -1: an object's soft rim, alpha < 0.5)
+    take their nearest covered pixel's: the rim's direct light is the splats' next to it (else a shadowed
+    object would get a lit fringe)."""
+    if not uncovered.any() or uncovered.all():
+        return visibility
+    _, (iy, ix) = ndimage.distance_transform_edt(uncovered, return_indices=True)
+    return visibility[iy, ix]
 
 
 def _with_colors(gaussians: Gaussians, colors: NDArray[np.float32]) -> Gaussians:
