@@ -153,7 +153,7 @@ def lighting_main(quick: bool, device: str) -> None:
     wp.config.quiet = True
     wp.init()
     load_start = os.getloadavg()
-    frames, reps, (h, w) = (2, 1, (281, 500)) if quick else (4, 4, (562, 1000))
+    frames, reps, (h, w) = (2, 1, (281, 500)) if quick else (3, 8, (562, 1000))
     cfg = scenario_config("drop", scenes=("table",), num_objects=(5, 5))
     settings = dataclasses.replace(render_settings(), device=device)
     scenario = sample_scenario(cfg, "bench-light", 7, "train", "earth", frames, 25.0, (h, w))
@@ -164,20 +164,22 @@ def lighting_main(quick: bool, device: str) -> None:
     runs = {name: dataclasses.replace(settings, **changes) for name, changes in LIGHTING_MODES.items()}
     for run in runs.values():  # warm-up (module loads)
         render_sequence(scenario, objects, layout, result, run)
-    wall = {name: float("inf") for name in runs}
-    cpu = {name: float("inf") for name in runs}
+    wall: dict[str, list[float]] = {name: [] for name in runs}
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
     n_maps = 0
     last_rgb: dict[str, np.ndarray] = {}
     for _ in range(reps):  # modes interleaved, so that load changes on the shared machine hit all of them
         for name, run in runs.items():
             t0, c0 = time.perf_counter(), time.process_time()
             maps, _, _ = render_sequence(scenario, objects, layout, result, run)
-            wall[name] = min(wall[name], time.perf_counter() - t0)
-            cpu[name] = min(cpu[name], time.process_time() - c0)
+            wall[name].append((time.perf_counter() - t0) / frames)
+            cpu[name].append((time.process_time() - c0) / frames)
             n_maps = len(maps)
             last_rgb[name] = maps["rgb"][-1]
-    rows = [{"mode": name, "settings": LIGHTING_MODES[name], "seconds_per_frame": wall[name] / frames,
-             "cpu_seconds_per_frame": cpu[name] / frames, "maps": n_maps} for name in runs]
+    rows = [{"mode": name, "settings": LIGHTING_MODES[name], "seconds_per_frame": min(wall[name]),
+             "cpu_seconds_per_frame": min(cpu[name]), "median_seconds_per_frame": float(np.median(wall[name])),
+             "samples_seconds_per_frame": wall[name], "samples_cpu_seconds_per_frame": cpu[name], "maps": n_maps}
+            for name in runs]
     base, base_cpu = rows[0]["seconds_per_frame"], rows[0]["cpu_seconds_per_frame"]
     for r in rows:
         r["ratio_to_unlit"] = r["seconds_per_frame"] / base
@@ -197,7 +199,8 @@ def lighting_main(quick: bool, device: str) -> None:
             "platform": platform.platform(), "warp": wp.__version__, "torch": torch.__version__,
             "note": "seconds_per_frame: best-of-reps wall time of render_sequence (RGB + every map, skinning and "
                     "label gathers included) / frames; cpu_seconds_per_frame: the same with process CPU time (all "
-                    "threads); modes interleaved per rep; the machine is shared, see load_average_*."}
+                    "threads); samples_*: every rep; modes interleaved per rep; the machine is shared, see "
+                    "load_average_*."}
     out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     from PIL import Image
 
