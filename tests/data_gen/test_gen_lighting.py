@@ -98,3 +98,26 @@ def test_the_block_shadows_the_floor_where_geometry_puts_it(simulated) -> None:
     assert inside.sum() >= 5 and outside.sum() >= 100
     assert darker[inside].mean() > 0.9
     assert not darker[outside].any()
+
+
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"shadow_test": "ray"}, r"render.shadow_test must be one of \('pixel', 'splat'\), got 'ray'"),
+        ({"shadow_map_px": 4}, r"render.shadow_map_px must be >= 8 px, got 4"),
+        ({"shadow_bias_m": -0.01}, r"render.shadow_bias_m must be a finite distance >= 0 m, got -0.01"),
+    ],
+)
+def test_render_settings_reject_bad_lighting_values(changes, match) -> None:
+    from data_gen.configs import render_settings
+
+    with pytest.raises(ValueError, match=match):
+        render_settings(**changes)
+
+
+def test_lighting_keys_are_in_the_shipped_config() -> None:
+    from data_gen.configs import generation_config
+
+    cfg = generation_config("render.lighting=false")
+    assert cfg.render.lighting is False and cfg.render.shadows is True
+    assert "lighting: false" in cfg.config_yaml and "shadow_test: pixel" in cfg.config_yaml  # recorded in shards
