@@ -37,7 +37,7 @@ interleaved in each rep, after one warm-up render of each).
     python bench/bench_render.py --lighting [--quick] [--device cuda]
 
 Writes bench/results/render_lighting.json (render_lighting_<device>.json off CPU) and a
-PNG of the last frame in each mode, top to bottom.
+half-size PNG of the last frame in each mode, top to bottom.
 """
 
 from __future__ import annotations
@@ -204,7 +204,8 @@ def lighting_main(quick: bool, device: str) -> None:
     out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     from PIL import Image
 
-    Image.fromarray(np.concatenate([last_rgb[name] for name in runs], axis=0)).save(out.with_suffix(".png"))
+    strip = Image.fromarray(np.concatenate([last_rgb[name] for name in runs], axis=0))
+    strip.resize((strip.width // 2, strip.height // 2), Image.LANCZOS).save(out.with_suffix(".png"), optimize=True)
     print(f"wrote {out} and {out.with_suffix('.png').name} (last frame of each mode, top to bottom)")
 
 
