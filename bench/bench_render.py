@@ -24,6 +24,20 @@ measured end to end.
     python bench/bench_render.py [--quick]
 
 Writes bench/results/render.json.
+
+``--lighting`` measures instead what one *frame* of a sequence costs at the paper's
+1000 x 562: RGB and every label map (``data_gen.pipeline.render_sequence``, skinning
+and gathers included) of a simulated ``drop`` scenario on the ``table`` layout
+(5 objects), unlit (``render.lighting=false``, the old behaviour), lit without
+shadows, and lit with shadows tested per splat and per pixel (the default), with
+the ratio to unlit. Seconds per frame = best of ``reps`` renders of the sequence /
+its frames, wall and process CPU time (the light view fit included; modes
+interleaved in each rep, after one warm-up render of each).
+
+    python bench/bench_render.py --lighting [--quick] [--device cuda]
+
+Writes bench/results/render_lighting.json (render_lighting_<device>.json off CPU) and a
+half-size PNG of the last frame in each mode, top to bottom.
 """
 
 from __future__ import annotations
@@ -118,10 +132,92 @@ def visible_count(g: Gaussians, K: np.ndarray, w2c: np.ndarray, side: int, alpha
     return int(project_gaussians(g, K, w2c, side, side, alpha_min=alpha_min)["visible"].sum())
 
 
+LIGHTING_MODES: dict[str, dict[str, object]] = {
+    "unlit": {"lighting": False},
+    "lit, no shadows": {"lighting": True, "shadows": False},
+    "lit + shadows (splat test)": {"lighting": True, "shadows": True, "shadow_test": "splat"},
+    "lit + shadows (pixel test, default)": {"lighting": True, "shadows": True, "shadow_test": "pixel"},
+}
+
+
+def lighting_main(quick: bool, device: str) -> None:
+    """Seconds per frame of RGB + every map at 1000 x 562 before / after lighting (see the module docstring)."""
+    import dataclasses
+
+    from data_gen.assets.registry import get_scene_layout
+    from data_gen.configs import render_settings, scenario_config
+    from data_gen.pipeline import build_objects, render_sequence, simulate
+    from data_gen.scenario import sample_scenario
+    from data_gen.sim.presets import load_preset
+
+    wp.config.quiet = True
+    wp.init()
+    load_start = os.getloadavg()
+    frames, reps, (h, w) = (2, 1, (281, 500)) if quick else (3, 8, (562, 1000))
+    cfg = scenario_config("drop", scenes=("table",), num_objects=(5, 5))
+    settings = dataclasses.replace(render_settings(), device=device)
+    scenario = sample_scenario(cfg, "bench-light", 7, "train", "earth", frames, 25.0, (h, w))
+    layout = get_scene_layout(scenario.scene)
+    objects = build_objects(scenario, settings)
+    result = simulate(scenario, objects, layout, load_preset("draft"))
+    n_gauss = int(sum(len(o.surface) for o in objects))
+    runs = {name: dataclasses.replace(settings, **changes) for name, changes in LIGHTING_MODES.items()}
+    for run in runs.values():  # warm-up (module loads)
+        render_sequence(scenario, objects, layout, result, run)
+    wall: dict[str, list[float]] = {name: [] for name in runs}
+    cpu: dict[str, list[float]] = {name: [] for name in runs}
+    n_maps = 0
+    last_rgb: dict[str, np.ndarray] = {}
+    for _ in range(reps):  # modes interleaved, so that load changes on the shared machine hit all of them
+        for name, run in runs.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            maps, _, _ = render_sequence(scenario, objects, layout, result, run)
+            wall[name].append((time.perf_counter() - t0) / frames)
+            cpu[name].append((time.process_time() - c0) / frames)
+            n_maps = len(maps)
+            last_rgb[name] = maps["rgb"][-1]
+    rows = [{"mode": name, "settings": LIGHTING_MODES[name], "seconds_per_frame": min(wall[name]),
+             "cpu_seconds_per_frame": min(cpu[name]), "median_seconds_per_frame": float(np.median(wall[name])),
+             "samples_seconds_per_frame": wall[name], "samples_cpu_seconds_per_frame": cpu[name], "maps": n_maps}
+            for name in runs]
+    base, base_cpu = rows[0]["seconds_per_frame"], rows[0]["cpu_seconds_per_frame"]
+    for r in rows:
+        r["ratio_to_unlit"] = r["seconds_per_frame"] / base
+        r["cpu_ratio_to_unlit"] = r["cpu_seconds_per_frame"] / base_cpu
+    print(f"RGB + {rows[0]['maps'] - 1} label maps per frame, {w}x{h}, {device}, table layout + 5 objects "
+          f"({n_gauss} object Gaussians, scene spacing {settings.scene_spacing_m} m), shadow map "
+          f"{settings.shadow_map_px} px; best of {reps} x {frames} frames")
+    print(f"{'mode':<38}{'s / frame':>12}{'x unlit':>10}{'CPU s / frame':>16}{'x unlit':>10}")
+    for r in rows:
+        print(f"{r['mode']:<38}{r['seconds_per_frame']:>12.3f}{r['ratio_to_unlit']:>10.2f}"
+              f"{r['cpu_seconds_per_frame']:>16.3f}{r['cpu_ratio_to_unlit']:>10.2f}")
+    out = RESULTS.with_name("render_lighting.json" if device == "cpu" else f"render_lighting_{device}.json")
+    meta = {"quick": quick, "device": device, "image_size": [h, w], "frames": frames, "reps": reps,
+            "scene": scenario.scene, "objects": len(objects), "object_gaussians": n_gauss,
+            "shadow_map_px": settings.shadow_map_px, "cpu_count": os.cpu_count(), "render_threads": settings.num_threads,
+            "load_average_at_start": load_start, "load_average_at_end": os.getloadavg(),
+            "platform": platform.platform(), "warp": wp.__version__, "torch": torch.__version__,
+            "note": "seconds_per_frame: best-of-reps wall time of render_sequence (RGB + every map, skinning and "
+                    "label gathers included) / frames; cpu_seconds_per_frame: the same with process CPU time (all "
+                    "threads); samples_*: every rep; modes interleaved per rep; the machine is shared, see "
+                    "load_average_*."}
+    out.write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    from PIL import Image
+
+    strip = Image.fromarray(np.concatenate([last_rgb[name] for name in runs], axis=0))
+    strip.resize((strip.width // 2, strip.height // 2), Image.LANCZOS).save(out.with_suffix(".png"), optimize=True)
+    print(f"wrote {out} and {out.with_suffix('.png').name} (last frame of each mode, top to bottom)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="small sizes, fewer repetitions")
+    ap.add_argument("--lighting", action="store_true", help="per-frame cost at 1000x562 before/after lighting")
+    ap.add_argument("--device", default="cpu", help="warp device of --lighting (cpu | cuda)")
     args = ap.parse_args()
+    if args.lighting:
+        lighting_main(args.quick, args.device)
+        return
     wp.config.quiet = True
     wp.init()
     load_start = os.getloadavg()

@@ -5,9 +5,15 @@ it: an asset's local frame or the world), a shape given either by per-axis
 standard deviations ``scales_m[i]`` (m) and an orientation ``rotations_wxyz[i]``
 (quaternion (w, x, y, z) taking the Gaussian's axes to that frame), or directly
 by a covariance ``covariances_m2[i]`` (m^2), a colour ``colors_rgb[i]`` in
-[0, 1], an opacity ``opacities[i]`` in [0, 1] and a part id ``part_ids[i]``
-(what the splat belongs to: an object's part, a scene box + 1 with 0 for the
-floor, or an object id; 0 when not given).
+[0, 1] (the *albedo*: a lit render multiplies it by the light reaching the
+splat, ``data_gen.render.shading``), an opacity ``opacities[i]`` in [0, 1], a
+part id ``part_ids[i]`` (what the splat belongs to: an object's part, a scene
+box + 1 with 0 for the floor, or an object id; 0 when not given) and optionally
+a unit surface normal ``normals[i]`` (outward where the source knows it: mesh
+and shape normals; a splat file's ``nx ny nz``). Without given normals,
+:meth:`Gaussians.surface_normals` takes the shortest axis of each covariance
+(the normal of a flat splat, sign arbitrary; the shading flips normals to face
+the camera, so the sign does not matter there).
 
 Rotations are kept as given (3DGS files store them unnormalised, and the
 encoded bytes must survive a round trip); ``unit_rotations_wxyz`` is their
@@ -19,8 +25,9 @@ label maps as the nearest covering Gaussian); the caller selects the surface
 subset before building a :class:`Gaussians`.
 
 Simulated deformation moves a splat through its centre and deforms its shape
-through the local deformation gradient ``F``: Sigma -> F Sigma F^T
-(:meth:`Gaussians.deformed`).
+through the local deformation gradient ``F``: Sigma -> F Sigma F^T, and its
+normal by the inverse transpose: n -> F^-T n / |F^-T n| (:meth:`Gaussians.deformed`,
+:func:`deform_normals`). A rigid transform rotates the normals.
 """
 
 from __future__ import annotations
@@ -86,6 +93,8 @@ class Gaussians:
     colors_rgb: F32
     opacities: F32
     part_ids: I32 | None = None
+    normals: F32 | None = None
+    """(N, 3) unit surface normals (normalised here; a zero row is an error), or None."""
 
     def __post_init__(self) -> None:
         means = _as_float_array("means_m", self.means_m, (3,), None)
@@ -99,6 +108,8 @@ class Gaussians:
         _check_range("opacities", opac, 0.0, 1.0)
         set_("opacities", opac)
         set_("part_ids", _as_part_ids(self.part_ids, n))
+        if self.normals is not None:
+            set_("normals", _unit_normals(_as_float_array("normals", self.normals, (3,), n)))
 
         if (self.scales_m is None) == (self.covariances_m2 is None):
             raise ValueError("Gaussians needs exactly one of scales_m (N,3) or covariances_m2 (N,3,3)")
@@ -149,11 +160,18 @@ class Gaussians:
         rs = rot * self.scales_m.astype(np.float64)[:, None, :]  # R S (columns scaled)
         return rs @ np.swapaxes(rs, 1, 2)
 
+    def surface_normals(self) -> F32:
+        """(N, 3) float32 unit normals: the given ``normals``, else each covariance's shortest axis."""
+        if self.normals is not None:
+            return self.normals
+        return normals_from_covariances(self.covariances())
+
     def deformed(self, deformation_gradients: ArrayLike, means_m: ArrayLike | None = None) -> Gaussians:
         """Gaussians after a local deformation: Sigma -> F Sigma F^T, centres moved to ``means_m`` if given.
 
         ``deformation_gradients`` is (N, 3, 3), dimensionless (dx/dX at each
-        splat centre). The result stores full covariances.
+        splat centre). The result stores full covariances; given normals become
+        F^-T n, renormalised (:func:`deform_normals`).
         """
         f = np.asarray(deformation_gradients, np.float64)
         if f.shape != (len(self), 3, 3):
@@ -170,6 +188,7 @@ class Gaussians:
             colors_rgb=self.colors_rgb,
             opacities=self.opacities,
             part_ids=self.part_ids,
+            normals=None if self.normals is None else deform_normals(self.normals, f),
         )
 
     def transformed(self, transform: ArrayLike) -> Gaussians:
@@ -179,11 +198,14 @@ class Gaussians:
             raise ValueError(f"transform must be a 4x4 rigid matrix, got shape {m.shape}")
         r = m[:3, :3]
         means = self.means_m.astype(np.float64) @ r.T + m[:3, 3]
+        normals = None if self.normals is None else self.normals.astype(np.float64) @ r.T
         if self.covariances_m2 is not None:
-            return dataclasses.replace(self, means_m=means, covariances_m2=r @ self.covariances() @ r.T)
+            return dataclasses.replace(
+                self, means_m=means, covariances_m2=r @ self.covariances() @ r.T, normals=normals
+            )
         assert self.rotations_wxyz is not None
         q = quat_multiply(matrix_to_quat(r)[None, :], self.rotations_wxyz.astype(np.float64))
-        return dataclasses.replace(self, means_m=means, rotations_wxyz=q)
+        return dataclasses.replace(self, means_m=means, rotations_wxyz=q, normals=normals)
 
     def scaled(self, factor: float) -> Gaussians:
         """The Gaussians scaled uniformly about the origin by ``factor`` (> 0): centres and sizes."""
@@ -210,17 +232,67 @@ class Gaussians:
 
 
 def concatenate(items: Sequence[Gaussians]) -> Gaussians:
-    """One Gaussians holding all of ``items`` in order (all given by scales + rotations, or all by covariances)."""
+    """One Gaussians holding all of ``items`` in order (all given by scales + rotations, or all by covariances).
+
+    If some items have normals and others not, the others get their shortest covariance axes."""
     if not items:
         raise ValueError("concatenate: items must hold at least one Gaussians")
     forms = {g.covariances_m2 is None for g in items}
     if len(forms) != 1:
         raise ValueError("concatenate: items mix scales + rotations with covariances; deform them all first")
+    if any(g.normals is not None for g in items):
+        items = [g if g.normals is not None else dataclasses.replace(g, normals=g.surface_normals()) for g in items]
     fields = [f.name for f in dataclasses.fields(Gaussians)]
     joined = {
         k: None if getattr(items[0], k) is None else np.concatenate([getattr(g, k) for g in items]) for k in fields
     }
     return Gaussians(**joined)
+
+
+def normals_from_covariances(covariances_m2: ArrayLike) -> F32:
+    """(N, 3) float32 unit eigenvectors of the smallest eigenvalue of each (N, 3, 3) covariance.
+
+    The normal of a flat splat; its sign is whatever ``numpy.linalg.eigh`` returns (deterministic, arbitrary).
+    """
+    c = np.asarray(covariances_m2, np.float64)
+    if c.ndim != 3 or c.shape[1:] != (3, 3):
+        raise ValueError(f"covariances_m2 must have shape (N, 3, 3), got {c.shape}")
+    if len(c) == 0:
+        return np.zeros((0, 3), np.float32)
+    _, vecs = np.linalg.eigh(c)
+    return np.ascontiguousarray(vecs[:, :, 0], np.float32)
+
+
+def deform_normals(normals: ArrayLike, deformation_gradients: ArrayLike) -> F32:
+    """Unit normals (N, 3) after local deformations F (N, 3, 3): F^-T n, renormalised (float32).
+
+    Computed with the cofactor matrix cof(F) = det(F) F^-T (columns f1 x f2, f2 x f0, f0 x f1 of
+    F = [f0 f1 f2]) times sign(det F): finite for singular F, and the tangent plane's normal
+    (F t1) x (F t2) = cof(F) (t1 x t2) for any tangents t1 x t2 = n. A normal whose image vanishes
+    (F collapses the tangent plane) keeps its old direction.
+    """
+    n = np.asarray(normals, np.float64)
+    f = np.asarray(deformation_gradients, np.float64)
+    if n.ndim != 2 or n.shape[1] != 3 or f.shape != (len(n), 3, 3):
+        raise ValueError(f"deform_normals: need normals (N, 3) and F (N, 3, 3), got {n.shape} and {f.shape}")
+    f0, f1, f2 = f[:, :, 0], f[:, :, 1], f[:, :, 2]
+    out = (
+        n[:, 0:1] * np.cross(f1, f2) + n[:, 1:2] * np.cross(f2, f0) + n[:, 2:3] * np.cross(f0, f1)
+    ) * np.where(np.linalg.det(f) < 0.0, -1.0, 1.0)[:, None]
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    ok = norm[:, 0] > 1e-20
+    out[ok] /= norm[ok]
+    out[~ok] = n[~ok]
+    return np.ascontiguousarray(out, np.float32)
+
+
+def _unit_normals(arr: F32) -> F32:
+    norm = np.linalg.norm(arr.astype(np.float64), axis=1)
+    bad = norm < 1e-6
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"Gaussians.normals[{i}] = {arr[i].tolist()} has zero length; need a direction")
+    return np.ascontiguousarray(arr / norm[:, None], np.float32)
 
 
 def _as_part_ids(value: ArrayLike | None, count: int) -> I32:

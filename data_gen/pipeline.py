@@ -9,7 +9,9 @@ Steps (each reads the same :class:`~data_gen.scenario.Scenario`, none changes it
    in the scene layout's static geometry under the scenario's gravity.
 3. **Render** (:func:`render_sequence`): per frame, every surface Gaussian is
    moved through the skinning map (centre) and the local deformation gradient
-   (covariance ``F Σ Fᵀ``); RGB is alpha-composited, labels come from the
+   (covariance ``F Σ Fᵀ``, normal ``F⁻ᵀ n``); its colour is shaded by the
+   layout's light with shadows (``render.lighting``, off: the baked colours,
+   :mod:`data_gen.render.lighting`); RGB is alpha-composited, labels come from the
    nearest covering Gaussian (binarized opacity), depth is where the pixel ray
    meets that splat (its density peak), and each Gaussian carries
    the values of its nearest cubature point (contact, stress) and of its
@@ -45,9 +47,10 @@ from data_gen.assets.shapes import Scaled, Shape, Shell
 from data_gen.assets.voxel_shape import VoxelShape
 from data_gen.cameras import path_from_spec
 from data_gen.display_names import color_name, display_names
-from data_gen.gaussians import Gaussians
+from data_gen.gaussians import Gaussians, deform_normals
 from data_gen.object_boxes import oriented_box
 from data_gen.render.labels import LabelRasterizer, gather_labels
+from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent_m
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.scenario import Scenario
 from data_gen.sim.contact_points import SurfaceSamples
@@ -112,6 +115,24 @@ class RenderSettings:
     """Warp device: ``cpu`` or ``cuda``."""
     num_threads: int
     """Torch threads of one simulation."""
+    lighting: bool
+    """Shade RGB with the scene's light (``data_gen.render.lighting``); false: colours as baked (unlit)."""
+    shadows: bool
+    """With lighting: objects (and a layout's boxes) cast shadows through a shadow map."""
+    shadow_map_px: int
+    """Side of the square shadow map, px."""
+    shadow_bias_m: float
+    """Constant depth bias of the shadow test, m (a slope-scaled term is added, ``render.shadow_map``)."""
+    shadow_test: str
+    """``pixel`` (each pixel's surface point, two RGB passes) or ``splat`` (each splat's centre, one pass)."""
+
+    def __post_init__(self) -> None:
+        if int(self.shadow_map_px) < 8:
+            raise ValueError(f"render.shadow_map_px must be >= 8 px, got {self.shadow_map_px}")
+        if self.shadow_test not in SHADOW_TESTS:
+            raise ValueError(f"render.shadow_test must be one of {SHADOW_TESTS}, got {self.shadow_test!r}")
+        if not (np.isfinite(self.shadow_bias_m) and self.shadow_bias_m >= 0.0):
+            raise ValueError(f"render.shadow_bias_m must be a finite distance >= 0 m, got {self.shadow_bias_m}")
 
 
 @dataclass
@@ -249,6 +270,7 @@ class SkinnedSurface:
         self.c = deformation_basis(x0, w.to(torch.float64), g.to(torch.float64))
         rot = torch.as_tensor(quat_to_matrix(surface.rotations_wxyz.astype(np.float64)))
         self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64)[:, None, :]
+        self.n0 = surface.surface_normals()
         self.track = track
 
     def means_at(self, frame: int) -> np.ndarray:
@@ -258,12 +280,39 @@ class SkinnedSurface:
 
     def at(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World centres (n, 3) m, scales (n, 3) m and rotations (n, 4) wxyz at ``frame``."""
+        return self.pose(frame)[:3]
+
+    def pose(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`at` plus the unit normals (n, 3) at ``frame``: F^-T n0, renormalised (F = dx/dx0 holds the
+        object's rotation and deformation)."""
         tm = tmat_from_z(torch.as_tensor(self.track.handle_transforms[frame], dtype=torch.float64))
         x = self.x0 + displacement_from_tmat(self.b, tm)
-        m = deformation_from_tmat(self.c, tm) @ self.rs
+        f = deformation_from_tmat(self.c, tm)
+        m = f @ self.rs
         u, sv, _ = torch.linalg.svd(m)
         u[:, :, 2] *= torch.sign(torch.linalg.det(u))[:, None]  # proper rotation; cov = U S^2 U^T unchanged
-        return x.numpy(), sv.clamp_min(1e-9).numpy(), matrix_to_quat(u.numpy())
+        return x.numpy(), sv.clamp_min(1e-9).numpy(), matrix_to_quat(u.numpy()), deform_normals(self.n0, f.numpy())
+
+
+def scene_lighting(layout: SceneLayout, settings: RenderSettings, objects: list[SceneObject],
+                   skinned: list[SkinnedSurface], scene_g: Gaussians, t_count: int) -> SceneLighting | None:
+    """The sequence's :class:`SceneLighting` (None when ``settings.lighting`` is off), its light view fitted to
+    every position the casters take: the layout's boxes and every object's surface centres over all frames."""
+    if not settings.lighting:
+        return None
+    lighting = SceneLighting(layout.light, settings.shadows, settings.shadow_map_px, settings.shadow_bias_m,
+                             settings.device, settings.num_threads, settings.shadow_test)
+    points = [np.zeros((0, 3))]
+    radius = 0.0
+    if layout.splats is None and (scene_g.part_ids > 0).any():
+        boxes = scene_g.subset(scene_g.part_ids > 0)
+        points.append(boxes.means_m)
+        radius = largest_extent_m(boxes)
+    for o, sk in zip(objects, skinned):  # loop over objects and frames
+        points.extend(sk.means_at(t) for t in range(t_count))
+        radius = max(radius, largest_extent_m(o.surface))
+    lighting.fit(np.concatenate(points), radius)
+    return lighting
 
 
 def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
@@ -297,6 +346,16 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     positions[:, :n_scene] = scene_g.means_m
     scales = np.concatenate([scene_g.scales_m, np.zeros((n_all - n_scene, 3), np.float32)])
     rotations = np.concatenate([scene_g.rotations_wxyz, np.zeros((n_all - n_scene, 4), np.float32)])
+    normals = np.concatenate([scene_g.surface_normals(), np.zeros((n_all - n_scene, 3), np.float32)])
+    lighting = scene_lighting(layout, settings, objects, skinned, scene_g, t_count)
+    # casters: objects, and a layout's boxes (part > 0; the floor cannot shadow anything above it); a captured
+    # scene neither casts nor is relit (its light is in its colours), see data_gen.render.lighting
+    captured = layout.splats is not None
+    casters = np.concatenate([np.zeros(n_scene, bool) if captured else scene_g.part_ids > 0, np.ones(n_all - n_scene, bool)])
+    prelit = np.concatenate([np.full(n_scene, captured), np.zeros(n_all - n_scene, bool)])
+    # normals of unknown sign (a splat's shortest axis: splat files without nx ny nz) are lit two-sided
+    two_sided = np.concatenate([np.full(n, g.normals is None) for n, g in
+                                zip([n_scene] + sizes, [scene_g] + [o.surface for o in objects])])
     rgb_r = RgbRasterizer(h, w, settings.device, settings.num_threads)
     lab_r = LabelRasterizer(h, w, settings.device, settings.num_threads, depth_mode="surface")
     index_all = np.zeros((t_count, h, w), np.int64)
@@ -306,15 +365,18 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
         stress = np.zeros(n_all, np.float32)
         for k, o in enumerate(objects):  # loop over objects
             sl = slice(offsets[k], offsets[k + 1])
-            positions[t, sl], scales[sl], rotations[sl] = skinned[k].at(t)
+            positions[t, sl], scales[sl], rotations[sl], normals[sl] = skinned[k].pose(t)
             tr = tracks[o.object_id]
             contact[sl] = tr.contact_partner[t][nearest[k]] >= 0
             stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]
         g = Gaussians(means_m=positions[t], scales_m=scales, rotations_wxyz=rotations, colors_rgb=colors,
-                      opacities=opac)
-        rgb, _ = rgb_r.render(g, K, w2c[t], background_rgb=BACKGROUND_RGB)
-        maps[schema.RGB][t] = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
+                      opacities=opac, normals=normals)
         index, depth = lab_r.render(g, K, w2c[t])
+        if lighting is None:
+            rgb, _ = rgb_r.render(g, K, w2c[t], background_rgb=BACKGROUND_RGB)
+        else:
+            rgb = lighting.render_rgb(rgb_r, g, K, w2c[t], index, depth, casters, prelit, two_sided, BACKGROUND_RGB)
+        maps[schema.RGB][t] = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
         index_all[t] = index
         maps[schema.DEPTH][t] = depth
         ids = gather_labels(index, instance)
@@ -350,10 +412,11 @@ def camera_fov_deg(K: np.ndarray, image_size: tuple[int, int]) -> dict[str, floa
 
 def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
                       maps: dict[str, np.ndarray], K: np.ndarray, world_to_camera: np.ndarray,
-                      wall_time_s: float) -> WorldState:
+                      wall_time_s: float, lit: bool = True) -> WorldState:
     """The world-state JSON of a generated sequence (data contract), with what questions read: per frame and
     object the oriented box of the deformed object, per frame the camera's field of view, per object a
-    display name unique in the scene, its colour word and its material taxonomy (scene materials too)."""
+    display name unique in the scene, its colour word and its material taxonomy (scene materials too), and,
+    when the RGB was ``lit``, the scene's light."""
     tracks = {t.object_id: t for t in result.objects}
     surfaces = [SkinnedSurface(o.surface, tracks[o.object_id]) for o in objects]
     fov = camera_fov_deg(K, scenario.image_size)
@@ -392,7 +455,8 @@ def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: Sc
         scene=SceneInfo(name=layout.name, kind=layout.kind,
                         extra={"camera": scenario.camera.kind,
                                "materials": [{"name": m, **material_taxonomy.nominal(m).to_dict()} for m in scene_materials]}
-                        | ({"source": layout.source} if layout.source else {})),
+                        | ({"source": layout.source} if layout.source else {})
+                        | ({"light": layout.light.to_dict()} if lit else {})),
         materials=material_id_table(), semantic_classes=semantic_class_table(),
         objects=[
             ObjectInfo(
@@ -439,6 +503,7 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
     for name, arr in maps.items():
         if arr.dtype.kind == "f" and not np.isfinite(arr).all():
             raise SequenceRejected("nan", f"map {name} has non-finite values")
-    ws = build_world_state(scenario, objects, layout, result, maps, K, w2c, time.perf_counter() - t0)
+    ws = build_world_state(scenario, objects, layout, result, maps, K, w2c, time.perf_counter() - t0,
+                           lit=settings.lighting)
     timings = {"prepare_s": t1 - t0, "simulate_s": t2 - t1, "render_s": t3 - t2}
     return SequenceArrays(maps, K, w2c, ws), timings

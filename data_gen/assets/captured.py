@@ -2,7 +2,7 @@
 
 Reference syntax (``registry.get_scene_layout`` forwards it)::
 
-    ply:<path>?up=<axis>&scale=<factor>&ground=<auto|keep>&material=<name>&collide=<splats|floor>&thickness=<m>
+    ply:<path>?up=<axis>&scale=<factor>&ground=<auto|keep>&material=<name>&collide=<splats|floor>&thickness=<m>&light=<x>,<y>,<z>
 
 * ``name`` — the scene's name in shards (default: the file's stem; the file name and
   its SHA-256 are recorded as ``source``);
@@ -18,6 +18,11 @@ Reference syntax (``registry.get_scene_layout`` forwards it)::
   of balls around the splat centres (see below); ``floor``: only the ground plane.
 * ``thickness`` — the balls' radius, m (default: 0.75 x the median spacing of the
   collision samples, clipped to [``MIN_THICKNESS_M``, ``MAX_THICKNESS_M``]).
+* ``light`` — direction towards the capture's main light, ``x,y,z`` in the scene's
+  world frame after ``up`` (z up; normalised; at least 5 deg above the horizon);
+  default ``data_gen.scene_light.DEFAULT_LIGHT``'s. Inserted objects are shaded by it
+  and cast their shadows along it; the captured splats keep their recorded colours
+  (their light is already in them) and only darken where an object shadows them.
 
 Collision: the ground plane z = 0, plus (``collide=splats``) the captured geometry
 known by its splat centres (opacity >= ``MIN_OPACITY``) above the floor band
@@ -43,8 +48,9 @@ from data_gen.assets.asset_uri import file_provenance, parse_asset_uri
 from data_gen.assets.materials import ProceduralTexture, get_material
 from data_gen.assets.ply_io import UP_AXES, import_splats
 from data_gen.assets.scene_layout import PlacementRegion, SceneLayout
+from data_gen.scene_light import DEFAULT_LIGHT, SceneLight
 
-SCENE_KEYS = ("name", "up", "scale", "ground", "material", "collide", "thickness")
+SCENE_KEYS = ("name", "up", "scale", "ground", "material", "collide", "thickness", "light")
 GROUND_PERCENTILE = 1.0
 FOOTPRINT_PERCENTILES = (2.0, 98.0)
 MAX_REGION_HALF_M = 0.6
@@ -62,6 +68,7 @@ def check_scene_reference(reference: str) -> None:
     uri = parse_asset_uri(reference, SCENE_KEYS)
     uri.display_name()
     _options(uri)
+    _light(uri)
     if not uri.path.is_file():
         raise FileNotFoundError(f"ply: scene file not found: {uri.path}")
 
@@ -83,6 +90,20 @@ def _options(uri) -> tuple[str, str, str, float, str, float | None]:
         raise ValueError(f"{reference}: option collide={collide!r} must be 'splats' or 'floor'")
     thickness = uri.get_float("thickness", 0.0, MIN_THICKNESS_M, MAX_THICKNESS_M) if "thickness" in dict(uri.options) else None
     return up, ground, material, scale, collide, thickness
+
+
+def _light(uri) -> SceneLight:
+    """The scene's light: the default one, turned towards the ``light`` option's direction when given."""
+    text = dict(uri.options).get("light")
+    if text is None:
+        return DEFAULT_LIGHT
+    owner = f"{uri.scheme}:{uri.path}"
+    try:
+        return DEFAULT_LIGHT.with_direction(SceneLight.parse_direction(text, owner))
+    except ValueError as e:
+        if str(e).startswith(owner):
+            raise
+        raise ValueError(f"{owner}: option light={text!r}: {e}") from None
 
 
 def captured_scene(reference: str) -> SceneLayout:
@@ -130,6 +151,7 @@ def _load(reference: str, _mtime_ns: int, _size: int) -> SceneLayout:
         source=file_provenance(uri.path),
         collision_points_m=points,
         collision_radius_m=radius,
+        light=_light(uri),
     )
 
 

@@ -2,9 +2,10 @@
 
 A surface is sampled (area-uniform random points on a mesh, or a regular grid on
 the floor and on box faces); each sample becomes a flat Gaussian lying in the
-tangent plane: local z is the surface normal, the two in-plane standard
-deviations come from the local sample spacing and the normal one is a small
-fraction of them. Colours come from the mesh visuals, a procedural colour
+tangent plane: local z is the surface normal (also stored as the Gaussian's
+``normals``, outward: mesh normals, an SDF gradient for parametric shapes, the
+face normal on grids), the two in-plane standard deviations come from the local
+sample spacing and the normal one is a small fraction of them. Colours come from the mesh visuals, a procedural colour
 function, or an asset's textures; opacity is a constant (0.95 by default).
 
 Coverage rule: a renderer that binarises a Gaussian where
@@ -183,6 +184,7 @@ def gaussians_from_mesh(
         colors_rgb=np.clip(colors, 0.0, 1.0),
         opacities=np.full(n, opacity),
         part_ids=parts,
+        normals=normals,
     )
 
 
@@ -312,6 +314,7 @@ def floor_gaussians(
         colors_rgb=scene.floor_texture.colors_at(means),
         opacities=np.full(len(uv), opacity),
         part_ids=np.zeros(len(uv), np.int32),
+        normals=np.tile([0.0, 0.0, 1.0], (len(uv), 1)),
     )
 
 
@@ -321,7 +324,7 @@ def box_gaussians(
     """The six faces of an oriented box as grids of flat Gaussians (world frame)."""
     h = np.asarray(box.half_extents_m, np.float64)
     rot = quat_to_matrix(np.asarray(box.rotation_wxyz, np.float64))
-    means, scales, frames = [], [], []
+    means, scales, frames, normals = [], [], [], []
     for axis in range(3):  # six faces: loop over faces, vectorised over grid points
         u_ax, v_ax = (axis + 1) % 3, (axis + 2) % 3
         uv, du, dv = _plane_grid(h[u_ax], h[v_ax], spacing_m)
@@ -337,6 +340,7 @@ def box_gaussians(
             means.append(local @ rot.T + np.asarray(box.center_m))
             scales.append(np.tile([sig_u, sig_v, NORMAL_SCALE_RATIO * min(sig_u, sig_v)], (len(uv), 1)))
             frames.append(np.broadcast_to(frame, (len(uv), 3, 3)))
+            normals.append(np.broadcast_to(rot @ normal, (len(uv), 3)))
     m = np.concatenate(means)
     n = len(m)
     return Gaussians(
@@ -346,6 +350,7 @@ def box_gaussians(
         colors_rgb=box.texture.colors_at(m),
         opacities=np.full(n, opacity),
         part_ids=np.full(n, part_id, np.int32),
+        normals=np.concatenate(normals),
     )
 
 

@@ -20,6 +20,7 @@ on any mesh use the generalised winding number (``points_inside_mesh``, warp).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from dataclasses import dataclass
@@ -36,6 +37,8 @@ from data_gen.gaussians import Gaussians
 from newtphys.rotations import matrix_to_quat, quat_multiply, rotation_between
 
 SH_C0 = 0.28209479177387814
+#: A file normal (nx, ny, nz) shorter than this counts as absent (trainers often store zeros).
+MIN_FILE_NORMAL = 0.5
 OPACITY_EPS = 1e-6  # opacities are clipped to [eps, 1 - eps] before the logit
 UP_AXES = ("z", "y", "-y", "x", "-x", "-z")
 FloatArray = NDArray[np.floating[Any]]  # stored as float32 after validation
@@ -104,7 +107,7 @@ class SplatPly:
 # Encoding
 # --------------------------------------------------------------------------- #
 def encode_gaussians(g: Gaussians, f_rest: ArrayLike | None = None) -> SplatPly:
-    """Gaussians -> raw INRIA fields (f_dc from colour, logit opacity, log scales)."""
+    """Gaussians -> raw INRIA fields (f_dc from colour, logit opacity, log scales; normals or zeros)."""
     if g.scales_m is None or g.rotations_wxyz is None:
         raise ValueError(
             "encode_gaussians: the INRIA layout needs Gaussians given by scales_m + rotations_wxyz"
@@ -118,7 +121,7 @@ def encode_gaussians(g: Gaussians, f_rest: ArrayLike | None = None) -> SplatPly:
     op = np.clip(g.opacities.astype(np.float64), OPACITY_EPS, 1.0 - OPACITY_EPS)
     return SplatPly(
         positions=g.means_m,
-        normals=np.zeros((n, 3), np.float32),
+        normals=np.zeros((n, 3), np.float32) if g.normals is None else g.normals.copy(),
         f_dc=(g.colors_rgb.astype(np.float64) - 0.5) / SH_C0,
         f_rest=rest,
         opacity_logit=np.log(op / (1.0 - op)),
@@ -128,7 +131,13 @@ def encode_gaussians(g: Gaussians, f_rest: ArrayLike | None = None) -> SplatPly:
 
 
 def decode_splats(ply: SplatPly) -> Gaussians:
-    """Raw INRIA fields -> Gaussians (colour clipped to [0, 1], rotations normalised); f_rest dropped."""
+    """Raw INRIA fields -> Gaussians (colour clipped to [0, 1], rotations normalised); f_rest dropped.
+
+    Normals: the file's ``nx ny nz`` when every row has length >= ``MIN_FILE_NORMAL`` (oriented);
+    otherwise none are set (most 3DGS trainers write zeros) and ``Gaussians.surface_normals`` gives
+    each splat's shortest axis, of unknown sign (lit two-sided, ``data_gen.render.shading``). The
+    colour (degree-0 SH) becomes the albedo; the light baked into a capture stays in it.
+    """
     q = ply.rotations_wxyz.astype(np.float64)
     norm = np.linalg.norm(q, axis=1, keepdims=True)
     if len(q) and norm.min() < 1e-12:
@@ -136,13 +145,17 @@ def decode_splats(ply: SplatPly) -> Gaussians:
     colors = np.clip(0.5 + SH_C0 * ply.f_dc.astype(np.float64), 0.0, 1.0)
     opac = 1.0 / (1.0 + np.exp(-ply.opacity_logit.astype(np.float64)))
     opac = np.clip(opac, np.finfo(np.float32).tiny, 1.0)
-    return Gaussians(
+    g = Gaussians(
         means_m=ply.positions,
         scales_m=np.exp(ply.log_scales.astype(np.float64)),
         rotations_wxyz=q / norm,
         colors_rgb=colors,
         opacities=opac,
     )
+    given = ply.normals.astype(np.float64)
+    if len(given) and bool((np.linalg.norm(given, axis=1) >= MIN_FILE_NORMAL).all()):
+        return dataclasses.replace(g, normals=given)
+    return g
 
 
 # --------------------------------------------------------------------------- #

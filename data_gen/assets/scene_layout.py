@@ -5,7 +5,8 @@ z < 0 is solid) plus furniture-like oriented ``SceneBox``es, each with a materia
 class and a procedural texture, plus named ``PlacementRegion``s — free
 axis-aligned boxes above supporting surfaces where objects may be dropped.  A
 captured layout (``data_gen.assets.captured``) renders its own splats instead
-and may collide through sample points of its geometry.
+and may collide through sample points of its geometry.  Each layout carries its
+light (``light``: a directional key light plus ambient, ``data_gen.scene_light``).
 
 The simulator's collision geometry is built from it
 (``data_gen.pipeline.sim_static_scene`` -> ``data_gen.sim.static_scene.StaticScene``);
@@ -28,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from data_gen.assets.materials import ProceduralTexture, get_material
 from data_gen.assets.shapes import Box, Transformed
 from data_gen.gaussians import Gaussians
+from data_gen.scene_light import DEFAULT_LIGHT, SceneLight
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -112,6 +114,8 @@ class SceneLayout:
     """Captured scenes: (n, 3) samples of the collidable captured geometry (world, m); the solid is the
     union of balls of ``collision_radius_m`` around them (the simulator looks them up in a hash grid)."""
     collision_radius_m: float = 0.0
+    light: SceneLight = DEFAULT_LIGHT
+    """The scene's key and ambient light (``data_gen.scene_light``), read by lit renders."""
 
     def __post_init__(self) -> None:
         get_material(self.floor_material)
@@ -198,4 +202,5 @@ class SceneLayout:
                 for b in self.boxes
             ],
             "regions": [{"name": r.name, "min": list(r.min_m), "max": list(r.max_m)} for r in self.regions],
+            "light": self.light.to_dict(),
         }
