@@ -65,8 +65,8 @@ RECORDING = "data_gen/sim/recording.py"
 MUTANTS: tuple[Mutant, ...] = (
     # --- the five bugs of issue 16 ------------------------------------------------------------------
     Mutant("collision_f1_tp_over_denominator", METRICS,
-           "return 2 * tp / denom",
-           "return tp / denom"),
+           "2 * tp / denom.clamp_min(1.0)",
+           "tp / denom.clamp_min(1.0)"),
     Mutant("scene_flow_scaled_0_9", PIPELINE,
            "geometry.rotate_vectors(w2c[t], disp_world)",
            "geometry.rotate_vectors(w2c[t], 0.9 * disp_world)"),
@@ -208,8 +208,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "fn = (~p & t & m).sum()",
            "fn = (~p & target.bool()).sum()"),
     Mutant("gravity_magnitude_error_signed", METRICS,
-           "target.to(torch.float64).norm(dim=1)).abs()",
-           "target.to(torch.float64).norm(dim=1))"),
+           "(p.norm(dim=1) - g.norm(dim=1)).abs()",
+           "(p.norm(dim=1) - g.norm(dim=1))"),
     Mutant("zero_length_threshold_raised", METRICS,
            "ZERO_LENGTH_EPS: float = 1e-8",
            "ZERO_LENGTH_EPS: float = 1e-2"),
