@@ -46,6 +46,7 @@ from probes.vlm.predictions import manifest_set_dir, read_manifest, write_atomic
 from probes.vlm.predictions import read_predictions as read_prediction_list
 from probes.vlm.prompting import ROTATIONS, question_set_sha256
 from probes.vlm.selection import asked_items
+
 SCORER = "probes.vlm.scoring (macro accuracy, sequence-bootstrap CIs)"
 PRIOR_MAX_ITEMS = 20_000
 """The text prior is quadratic in items per question id: skipped (and said so) above this many items."""

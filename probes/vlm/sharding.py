@@ -88,11 +88,14 @@ def shard_run_dirs(run_dir: Path | str) -> list[Path]:
     """The shard run directories under ``<run_dir>/shards/`` (those with a manifest), sorted."""
     dirs = sorted(d for d in (Path(run_dir) / SHARDS_DIR).glob("*-of-*") if (d / MANIFEST_FILE).is_file())
     if not dirs:
-        raise FileNotFoundError(f"{Path(run_dir) / SHARDS_DIR}: no shard run directories (<k>-of-<N>/{MANIFEST_FILE})")
+        raise FileNotFoundError(
+            f"{Path(run_dir) / SHARDS_DIR}: no shard run directories (<k>-of-<N>/{MANIFEST_FILE})"
+        )
     return dirs
 
 
 # -- merge --------------------------------------------------------------------------------------------------
+
 
 def _identity(manifest: dict[str, Any]) -> dict[str, Any]:
     extra = {
@@ -231,7 +234,9 @@ def main(argv: list[str] | None = None) -> None:
     m.add_argument(
         "--set-dir", type=Path, default=None, help="the question set split (default: from the manifest)"
     )
-    m.add_argument("--allow-incomplete", action="store_true", help="merge what the shards have so far (unscored)")
+    m.add_argument(
+        "--allow-incomplete", action="store_true", help="merge what the shards have so far (unscored)"
+    )
     m.add_argument("--no-score", action="store_true", help="do not write scores.json")
     args = p.parse_args(argv)
     if args.out is None:
