@@ -95,8 +95,10 @@ def check_set(manifest: dict[str, Any], set_dir: Path, run_dir: Path) -> None:
 
 
 def item_results(run_dir: Path | str, set_dir: Path | str, check: bool = True) -> list[ItemResult]:
-    """Every item of the set with the run's correctness (missing predictions are wrong)."""
+    """Every item of the set with the run's correctness (missing predictions are wrong). The run is circular
+    when its manifest says so or it holds rotations 1-3."""
     run_dir, set_dir = Path(run_dir), Path(set_dir)
+    manifest = read_manifest(run_dir) if (run_dir / MANIFEST_FILE).is_file() else {}
     if check:
         check_set(read_manifest(run_dir), set_dir, run_dir)
     items, answers = vs.read_items(set_dir), vs.read_answers(set_dir)
@@ -108,7 +110,7 @@ def item_results(run_dir: Path | str, set_dir: Path | str, check: bool = True) -
             f"{run_dir}/{PREDICTIONS_FILE}: {len(unknown)} idx not in {set_dir}/{vs.QUESTIONS_FILE}, "
             f"e.g. {unknown[:3]}"
         )
-    circular = any(rot != 0 for _, rot in preds)
+    circular = bool(manifest.get("circular")) or any(rot != 0 for _, rot in preds)
     out = []
     for it in items:
         if it.idx not in answers:
