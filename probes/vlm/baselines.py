@@ -6,7 +6,9 @@
   order: it must score exactly 1.0, else the harness (prompting, rotation, extraction, scoring) is wrong.
 * ``constant_letter`` — always the same letter: its accuracy is the set's share of that letter.
 * ``prior`` — :class:`newtphys.vqa_prior.TextPrior` (text only, leave-one-sequence-out answer priors);
-  where it has no evidence it guesses like ``random``.
+  where it has no evidence it must still reply a letter and guesses like ``random``. The trivial-baseline
+  number reported beside every score (``baselines.prior`` of :mod:`probes.vlm.scoring`) counts those items
+  at their expected 0.25 instead, so this answerer's own run differs from it by the luck of its guesses.
 * ``blind`` — :class:`Blind` wraps any answerer and removes the images from its prompts.
 """
 

@@ -3,18 +3,17 @@
     python evaluate_vlm.py vlm=qwen2_5_vl_7b vqa_dir=data/vqa/test
     python evaluate_vlm.py -m vlm=random,oracle,constant_letter,prior,qwen2_5_vl_3b vqa_dir=data/vqa/test
     python evaluate_vlm.py vlm=qwen2_5_vl_7b blind=true circular=true
-    python evaluate_vlm.py -m hydra/launcher=slurm vlm=qwen2_5_vl_72b shard.count=4 shard.index=0,1,2,3
-    python -m probes.vlm.merge results/vlm/vqa-test/qwen2_5_vl_72b     # join the shards, then score
+    python evaluate_vlm.py -m hydra/launcher=vlm_slurm vlm=qwen2_5_vl_72b num_shards=4 'shard_index=range(0,4)'
+    python -m probes.vlm.sharding merge results/vlm/vqa-test/qwen2_5_vl_72b     # join the shards, then score
 
 Order: resolve the set directory -> build the answerer from ``cfg.vlm`` (``_target_``; a ``set_dir: null`` key is
 filled with the set) -> wrap it in :class:`~probes.vlm.baselines.Blind` when ``blind=true`` -> answer into the
-run directory (resuming) -> score into ``scores.json`` -> log to W&B. Options: ``newtphys/conf/evaluate_vlm.yaml``.
+run directory (resuming; one shard's directory when ``num_shards > 1``) -> score into ``scores.json``
+(:func:`probes.vlm.scoring.score_run`) -> log to W&B. Options: ``newtphys/conf/evaluate_vlm.yaml``.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import json
 import logging
 import os
@@ -27,11 +26,10 @@ from omegaconf import DictConfig, OmegaConf
 from newtphys.config import CONFIG_DIR
 from probes.vlm.baselines import Blind
 from probes.vlm.evaluate import EvalResult, evaluate
-from probes.vlm.interface import SCORES_FILE, Answerer
-from probes.vlm.merge import shard_dir
-from probes.vlm.predictions import write_atomic
+from probes.vlm.interface import Answerer
 from probes.vlm.prompting import resolve_set_dir
-from probes.vlm.simple_scores import simple_scores
+from probes.vlm.scoring import score_run
+from probes.vlm.sharding import check_shard, shard_dir
 
 log = logging.getLogger(__name__)
 
@@ -49,18 +47,6 @@ def build_answerer(vlm_cfg: DictConfig | dict[str, Any], set_dir: Path) -> Answe
 
 def run_name(answerer: Answerer, circular: bool) -> str:
     return answerer.name + ("-circular" if circular else "")
-
-
-def score(run_dir: Path, set_dir: Path) -> dict[str, Any]:
-    """``probes.vlm.scoring.score_run`` when that module exists (bootstrap intervals, circular), else
-    :func:`probes.vlm.simple_scores.simple_scores`; written to ``scores.json`` either way."""
-    if importlib.util.find_spec("probes.vlm.scoring") is not None:
-        scoring = importlib.import_module("probes.vlm.scoring")
-        scores = scoring.score_run(run_dir, set_dir)
-    else:
-        scores = simple_scores(run_dir, set_dir)
-    write_atomic(run_dir / SCORES_FILE, json.dumps(scores, indent=2, sort_keys=True, default=str) + "\n")
-    return scores
 
 
 def _flat(prefix: str, value: Any, out: dict[str, float]) -> None:
@@ -94,24 +80,24 @@ def log_wandb(cfg: DictConfig, name: str, result: EvalResult, scores: dict[str, 
     run.finish()
 
 
-def shard_of(cfg: DictConfig) -> tuple[int, int]:
-    """(index, count) of ``cfg.shard``; pins this job to ``shard.gpus[index % len]`` when GPUs are listed
-    (before CUDA starts)."""
-    sh = cfg.get("shard") or {}
-    index, count = int(sh.get("index", 0)), int(sh.get("count", 1))
-    if count < 1 or not 0 <= index < count:
-        raise ValueError(f"shard.index={index} shard.count={count}: need 0 <= index < count")
-    gpus = sh.get("gpus")
-    if gpus:
-        os.environ["CUDA_VISIBLE_DEVICES"] = str(list(gpus)[index % len(gpus)])
-    return index, count
+def pin_shard_gpu(shard_index: int, gpus: Any) -> str | None:
+    """With ``shard_gpus`` listed, this job sees only ``gpus[shard_index % len(gpus)]`` (set before CUDA starts;
+    submitit's local executor would give every job GPU 0). Returns the device set, or None."""
+    if not gpus:
+        return None
+    gpus = list(gpus)
+    device = str(gpus[shard_index % len(gpus)])
+    os.environ["CUDA_VISIBLE_DEVICES"] = device
+    return device
 
 
 def run(cfg: DictConfig) -> dict[str, Any]:
     """One evaluation from a composed ``evaluate_vlm`` config (tests call this); returns run_dir, result and
-    scores (none for one shard of a sharded run: merge the shards, :mod:`probes.vlm.merge`)."""
+    scores (none for one shard of a sharded run: merge the shards, :mod:`probes.vlm.sharding`)."""
     set_dir = resolve_set_dir(cfg.vqa_dir, cfg.get("split"))
-    index, count = shard_of(cfg)
+    index, count = int(cfg.get("shard_index", 0)), int(cfg.get("num_shards", 1))
+    check_shard(index, count)
+    pin_shard_gpu(index, cfg.get("shard_gpus"))
     answerer = build_answerer(cfg.vlm, set_dir)
     if cfg.get("blind", False):
         answerer = Blind(answerer)
@@ -121,21 +107,19 @@ def run(cfg: DictConfig) -> dict[str, Any]:
     base_dir = Path(cfg.run_dir) if cfg.get("run_dir") else default_dir
     run_dir = base_dir if count == 1 else shard_dir(base_dir, index, count)
     result = evaluate(answerer, set_dir, run_dir, batch_size=int(cfg.batch_size), circular=circular,
-                      limit=cfg.get("limit"), progress=bool(cfg.get("progress", True)), shard=(index, count),
-                      extra={"limit": cfg.get("limit"), "batch_size": int(cfg.batch_size)})  # fmt: skip
+                      limit=cfg.get("limit"), progress=bool(cfg.get("progress", True)), shard_index=index,
+                      num_shards=count, extra={"batch_size": int(cfg.batch_size)})  # fmt: skip
     if count > 1:
-        log.info("shard %d of %d done -> %s; merge with: python -m probes.vlm.merge %s", index, count, run_dir,
-                 base_dir)  # fmt: skip
+        log.info("shard %d of %d done -> %s; merge with: python -m probes.vlm.sharding merge %s", index, count,
+                 run_dir, base_dir)  # fmt: skip
         return {"run_dir": run_dir, "result": result, "scores": {}}
     log.info("%s: %d answered now, %d from earlier runs, %.1f s -> %s", name, result.answered, result.already_done,
              result.seconds, run_dir)  # fmt: skip
-    scores = score(run_dir, set_dir) if cfg.get("score", True) else {}
+    scores = score_run(run_dir, set_dir, n_boot=int(cfg.get("n_boot", 1000))) if cfg.get("score", True) else {}
     if scores:
-        strict = scores.get("strict", {}).get("overall")
-        best = scores.get("best_trivial", {})
-        if isinstance(strict, (int, float)) and isinstance(best.get("overall"), (int, float)):
-            log.info("%s strict macro accuracy %.4f (best trivial %s %.4f)", name, strict, best.get("name"),
-                     best.get("overall", float("nan")))  # fmt: skip
+        best = scores["best_trivial"]
+        log.info("%s strict macro accuracy %.4f (best trivial %s %.4f)", name, scores["strict"]["overall"],
+                 best["name"], best["overall"])  # fmt: skip
     log_wandb(cfg, name, result, scores)
     return {"run_dir": run_dir, "result": result, "scores": scores}
 

@@ -11,6 +11,9 @@
   change between runs).
 * While a store is open it holds an exclusive ``flock`` on ``<run_dir>/.lock``: a second process writing the
   same directory gets :class:`RunDirectoryBusy` (the kernel releases the lock of a killed process).
+
+The readers every other module uses live here too: :func:`read_manifest`, :func:`manifest_set_dir`,
+:func:`read_predictions`.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from pathlib import Path
 from typing import Any, Self
 
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, PredictionRecord, RunManifest
+from probes.vlm.prompting import ROTATIONS, resolve_set_dir
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +63,24 @@ def manifest_differences(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
         if a["model"].get(k) != b["model"].get(k):
             out.append(f"model.{k}: {a['model'].get(k)!r} -> {b['model'].get(k)!r}")
     return out
+
+
+def read_manifest(run_dir: Path | str) -> dict[str, Any]:
+    """``<run_dir>/manifest.json`` as a dict; a clear error when ``run_dir`` is not a run directory."""
+    path = Path(run_dir) / MANIFEST_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no run manifest (a run directory holds {MANIFEST_FILE})")
+    return json.loads(path.read_text())
+
+
+def manifest_set_dir(manifest: dict[str, Any], run_dir: Path | str | None = None) -> Path:
+    """The question-set split directory of a run: ``vqa_dir`` when it holds ``questions.jsonl`` (the evaluation
+    loop records the split directory), else ``<vqa_dir>/<split>`` (:func:`probes.vlm.prompting.resolve_set_dir`)."""
+    try:
+        return resolve_set_dir(manifest["vqa_dir"], manifest.get("split") or None)
+    except FileNotFoundError as e:
+        where = f"{run_dir}/{MANIFEST_FILE}: " if run_dir is not None else ""
+        raise FileNotFoundError(f"{where}{e}; or pass the set directory explicitly") from None
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -100,8 +122,9 @@ def cut_torn_tail(path: Path) -> int:
 
 
 def read_predictions(path: Path | str) -> list[PredictionRecord]:
-    """Every complete record of a ``predictions.jsonl`` (a torn last line is ignored, not cut); a malformed
-    complete line or a duplicated ``(idx, rotation)`` raises ValueError naming file and line."""
+    """Every complete record of a ``predictions.jsonl`` in file order (a torn last line is ignored, not cut;
+    no file: none); a malformed complete line, a rotation outside 0-3 or a duplicated ``(idx, rotation)``
+    raises ValueError naming file and line."""
     path = Path(path)
     if not path.is_file():
         return []
@@ -117,6 +140,8 @@ def read_predictions(path: Path | str) -> list[PredictionRecord]:
             rec = PredictionRecord.from_dict(json.loads(raw))
         except (json.JSONDecodeError, TypeError, UnicodeDecodeError) as e:
             raise ValueError(f"{path}:{n}: not a prediction record ({e})") from None
+        if rec.rotation not in ROTATIONS:
+            raise ValueError(f"{path}:{n}: rotation={rec.rotation!r}, allowed {list(ROTATIONS)}")
         key = (rec.idx, int(rec.rotation))
         if key in seen:
             raise ValueError(f"{path}:{n}: prediction for idx={rec.idx!r} rotation={rec.rotation} duplicates "

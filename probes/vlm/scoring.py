@@ -17,12 +17,12 @@ evaluation loop recorded it, else every mode of the set). Within the scope:
 * beside every score, the trivial predictors on the same items under the same rule (``baselines``, flat:
   ``chance``, ``constant_A`` ... ``constant_D``, ``prior``; ``best_trivial``; ``baseline_details``): chance
   (0.25, circular 0.25^4), each constant letter (macro accuracy of answering it everywhere; 0 circular),
-  the text prior of :mod:`newtphys.vqa_prior` (leave-one-sequence-out; an abstention scores its expected
-  0.25); details: the best letter per category, the letter shares, the prior per category.
+  the text prior of :mod:`newtphys.vqa_prior` (leave-one-sequence-out; an abstention scores its *expected*
+  0.25 -- the ``prior`` answerer of :mod:`probes.vlm.baselines` must reply a letter and guesses there, so its
+  own run scores that expectation plus the luck of its guesses); details: the best letter per category, the
+  letter shares, the prior per category.
 
-Top-level keys shared with :mod:`probes.vlm.simple_scores` (the fallback): ``scorer``, ``answerer``,
-``weights``, ``circular`` (bool), ``items``, ``extracted_share``, ``strict``, ``lenient``, ``baselines``,
-``best_trivial``.
+The ``scores.json`` keys are documented in one place: docs/vlm_evaluation.md ("scores.json").
 
 The variants (roi_masked, cue_*, level_*, cf_* ...) are scored too, by variant, and the ids left out of the
 analysis apart; :mod:`probes.vlm.report` builds the paper's analyses from :func:`item_results`.
@@ -30,7 +30,6 @@ analysis apart; :mod:`probes.vlm.report` builds the paper's analyses from :func:
 
 from __future__ import annotations
 
-import hashlib
 import json
 from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
@@ -43,8 +42,11 @@ from newtphys.vqa_prior import CHANCE, TextPrior
 from newtphys.vqa_scoring import macro_accuracy
 from probes.vlm.bootstrap import bootstrap_ci, build_table, point_estimate
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, SCORES_FILE, PredictionRecord
+from probes.vlm.predictions import manifest_set_dir, read_manifest, write_atomic
+from probes.vlm.predictions import read_predictions as read_prediction_list
+from probes.vlm.prompting import ROTATIONS, question_set_sha256
+from probes.vlm.selection import asked_items
 
-ROTATIONS: tuple[int, ...] = (0, 1, 2, 3)
 SCORER = "probes.vlm.scoring (macro accuracy, sequence-bootstrap CIs)"
 PRIOR_MAX_ITEMS = 20_000
 """The text prior is quadratic in items per question id: skipped (and said so) above this many items."""
@@ -72,85 +74,19 @@ class ItemResult:
         return self.strict if self.circular_strict is None else self.circular_strict
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def read_manifest(run_dir: Path) -> dict[str, Any]:
-    path = Path(run_dir) / MANIFEST_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no run manifest (a run directory holds {MANIFEST_FILE})")
-    return json.loads(path.read_text())
-
-
 def read_predictions(run_dir: Path) -> dict[tuple[str, int], PredictionRecord]:
-    """(idx, rotation) -> prediction of ``predictions.jsonl``; a duplicate key is an error."""
+    """(idx, rotation) -> prediction of ``<run_dir>/predictions.jsonl``
+    (:func:`probes.vlm.predictions.read_predictions`: duplicates and bad rotations are errors)."""
     path = Path(run_dir) / PREDICTIONS_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no predictions")
-    out: dict[tuple[str, int], PredictionRecord] = {}
-    for line, d in vs.iter_jsonl(path):
-        rec = PredictionRecord.from_dict(d)
-        key = (rec.idx, int(rec.rotation))
-        if key in out:
-            raise ValueError(
-                f"{path}:{line}: duplicate prediction for idx={rec.idx!r} rotation={rec.rotation}"
-            )
-        if rec.rotation not in ROTATIONS:
-            raise ValueError(f"{path}:{line}: rotation={rec.rotation!r}, allowed {list(ROTATIONS)}")
-        out[key] = rec
-    return out
-
-
-def manifest_set_dir(manifest: dict[str, Any], run_dir: Path | str = "?") -> Path:
-    """The question-set split directory of a run: ``vqa_dir`` when it holds ``questions.jsonl`` (the evaluation
-    loop records the split directory), else ``<vqa_dir>/<split>``."""
-    root = Path(manifest["vqa_dir"])
-    for cand in (root, vs.split_dir(root, str(manifest.get("split", "")))):
-        if (cand / vs.QUESTIONS_FILE).is_file():
-            return cand
-    raise FileNotFoundError(
-        f"{run_dir}/{MANIFEST_FILE}: no {vs.QUESTIONS_FILE} in vqa_dir={str(root)!r} nor in "
-        f"its split {manifest.get('split')!r}; pass the set directory explicitly"
-    )
-
-
-def asked_items(
-    items: Sequence[vs.QuestionItem], manifest: dict[str, Any]
-) -> tuple[set[str], dict[str, int]]:
-    """The idx the run's answerer was asked (the evaluation loop's selection, from the manifest): a
-    ``single_image_only`` model gets single items only, a model with ``max_images`` no item with more images,
-    ``extra["modes"]`` restricts the modes, ``extra["limit"]`` keeps the first N of those. Returns the idx set
-    and the counts left out by reason."""
-    model, extra = manifest.get("model") or {}, manifest.get("extra") or {}
-    modes = extra.get("modes")
-    max_images = model.get("max_images")
-    keep: list[str] = []
-    left: dict[str, int] = {"multi": 0, "too_many_images": 0, "mode": 0, "limit": 0}
-    for it in items:
-        if model.get("single_image_only") and it.mode != "single":
-            left["multi"] += 1
-        elif max_images is not None and len(it.images) > int(max_images):
-            left["too_many_images"] += 1
-        elif modes is not None and it.mode not in modes:
-            left["mode"] += 1
-        else:
-            keep.append(it.idx)
-    limit = extra.get("limit")
-    if limit is not None:
-        left["limit"] = max(0, len(keep) - int(limit))
-        keep = keep[: int(limit)]
-    return set(keep), left
+    return {(r.idx, int(r.rotation)): r for r in read_prediction_list(path)}
 
 
 def check_set(manifest: dict[str, Any], set_dir: Path, run_dir: Path) -> None:
     """The run was made on this set: ``question_set_sha256`` matches ``questions.jsonl``."""
     want = manifest.get("question_set_sha256")
-    got = file_sha256(Path(set_dir) / vs.QUESTIONS_FILE)
+    got = question_set_sha256(set_dir)
     if want and want != got:
         raise ValueError(
             f"{run_dir}/{MANIFEST_FILE}: question_set_sha256={want[:12]}... but "
@@ -159,8 +95,10 @@ def check_set(manifest: dict[str, Any], set_dir: Path, run_dir: Path) -> None:
 
 
 def item_results(run_dir: Path | str, set_dir: Path | str, check: bool = True) -> list[ItemResult]:
-    """Every item of the set with the run's correctness (missing predictions are wrong)."""
+    """Every item of the set with the run's correctness (missing predictions are wrong). The run is circular
+    when its manifest says so or it holds rotations 1-3."""
     run_dir, set_dir = Path(run_dir), Path(set_dir)
+    manifest = read_manifest(run_dir) if (run_dir / MANIFEST_FILE).is_file() else {}
     if check:
         check_set(read_manifest(run_dir), set_dir, run_dir)
     items, answers = vs.read_items(set_dir), vs.read_answers(set_dir)
@@ -172,7 +110,7 @@ def item_results(run_dir: Path | str, set_dir: Path | str, check: bool = True) -
             f"{run_dir}/{PREDICTIONS_FILE}: {len(unknown)} idx not in {set_dir}/{vs.QUESTIONS_FILE}, "
             f"e.g. {unknown[:3]}"
         )
-    circular = any(rot != 0 for _, rot in preds)
+    circular = bool(manifest.get("circular")) or any(rot != 0 for _, rot in preds)
     out = []
     for it in items:
         if it.idx not in answers:
@@ -318,9 +256,11 @@ def _scope(results: Sequence[ItemResult], modes: Sequence[str], variant: str | N
 def asked_results(
     results: Sequence[ItemResult], manifest: dict[str, Any]
 ) -> tuple[list[ItemResult], dict[str, int]]:
-    """The results of the items the run's answerer was asked, and the counts left out (:func:`asked_items`)."""
+    """The results of the items the run's answerer was asked, and the counts left out
+    (:func:`probes.vlm.selection.asked_items`)."""
     asked, left = asked_items([r.item for r in results], manifest)
-    return [r for r in results if r.item.idx in asked], left
+    idx = {it.idx for it in asked}
+    return [r for r in results if r.item.idx in idx], left
 
 
 def score_results(
@@ -448,7 +388,5 @@ def score_run(
         **scores,
     }
     if write:
-        tmp = run_dir / (SCORES_FILE + ".tmp")
-        tmp.write_text(json.dumps(scores, indent=2, sort_keys=True))
-        tmp.replace(run_dir / SCORES_FILE)
+        write_atomic(run_dir / SCORES_FILE, json.dumps(scores, indent=2, sort_keys=True) + "\n")
     return scores

@@ -1,25 +1,26 @@
-"""Split a question set across jobs and merge their run directories.
-
-Sharding semantics (what the evaluate CLI's ``shard_index`` / ``num_shards`` mean)::
+"""Split a question set across jobs by whole sequences, and merge the shards' run directories into one run.
 
     python evaluate_vlm.py -m hydra/launcher=vlm_slurm vlm=qwen2_5_vl_7b vqa_dir=data/vqa/test \
         num_shards=8 'shard_index=range(0,8)'
-    python -m probes.vlm.sharding merge --out runs/qwen2_5_vl_7b <the 8 run directories>
+    python -m probes.vlm.sharding merge results/vlm/vqa-test/qwen2_5_vl_7b      # join the shards, score
 
+* the config keys are ``shard_index`` and ``num_shards`` (``newtphys/conf/evaluate_vlm.yaml``); shard k of N
+  writes the run directory ``<run_dir>/shards/<k>-of-<N>/`` (:func:`shard_dir`), resumable on its own, and
+  records ``extra["shard_index"]`` and ``extra["num_shards"]`` in its manifest;
 * a sequence is the unit: every item of one ``sequence_id`` lands in the same shard (so the sequence
   bootstrap of :mod:`probes.vlm.bootstrap` and the variant/base matching of the reports never straddle two
   shards);
 * sequences are dealt to shards by decreasing item count, each to the shard with the fewest items so far
   (ties: the lower shard index; sequences of equal count in ``sequence_id`` order) -- shards are balanced in
-  items, and the assignment depends only on the set, not on the order of its lines or on the job;
-* the shards of one ``num_shards`` are disjoint and their union is the set; an item keeps its set order
-  within its shard;
-* a shard's run directory records ``extra["shard_index"]`` and ``extra["num_shards"]`` in its manifest;
-  :func:`merge_runs` checks that the manifests agree on everything else, that no (idx, rotation) comes twice,
-  that every shard 0..num_shards-1 is there, and that the union answers every item (in the run's
-  ``extra["modes"]`` when recorded; rotations 0-3 when circular).
+  items, and the assignment depends only on the items, not on the order of their lines or on the job;
+* the shards of one ``num_shards`` are disjoint and their union is the asked items
+  (:func:`probes.vlm.selection.asked_items`); an item keeps its set order within its shard;
+* :func:`merge_runs` checks that the manifests agree on everything but the shard keys, that no
+  (idx, rotation) comes twice, that every shard 0..num_shards-1 is there, and that the union answers every
+  asked item (rotations 0-3 when circular); it writes one run directory in set order, which scores like an
+  unsharded run of the same answerer.
 
-``num_shards=1`` (the default) is the whole set.
+``num_shards=1`` (the default) is the whole set in ``<run_dir>`` itself.
 """
 
 from __future__ import annotations
@@ -34,11 +35,12 @@ from typing import Any
 
 from newtphys import vqa_schema as vs
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE, PredictionRecord
-from probes.vlm.scoring import asked_items, manifest_set_dir
+from probes.vlm.predictions import manifest_set_dir, read_manifest, read_predictions, write_atomic
+from probes.vlm.selection import asked_items
 
-SHARD_KEYS: tuple[str, ...] = ("shard_index", "num_shards", "shard")
-"""Keys of ``RunManifest.extra`` that differ between the shards of one run (and are dropped by a merge):
-``shard_index`` + ``num_shards``, or ``shard`` = [index, count] (the evaluation loop's form)."""
+SHARDS_DIR = "shards"
+SHARD_KEYS: tuple[str, ...] = ("shard_index", "num_shards")
+"""Keys of ``RunManifest.extra`` that differ between the shards of one run (and are dropped by a merge)."""
 MERGE_VOLATILE_KEYS: tuple[str, ...] = ("started_at", "finished_at", "host", "hostname", "wall_s")
 """Other ``extra`` keys allowed to differ between shards (recorded per shard in ``merged_from``)."""
 
@@ -76,12 +78,23 @@ def shard_items(items: Sequence[vs.QuestionItem], shard_index: int, num_shards: 
     return [it for it in items if owner[it.sequence_id] == shard_index]
 
 
+def shard_dir(run_dir: Path | str, shard_index: int, num_shards: int) -> Path:
+    """The run directory of shard ``shard_index`` of ``num_shards`` of the run ``run_dir``."""
+    check_shard(shard_index, num_shards)
+    return Path(run_dir) / SHARDS_DIR / f"{shard_index}-of-{num_shards}"
+
+
+def shard_run_dirs(run_dir: Path | str) -> list[Path]:
+    """The shard run directories under ``<run_dir>/shards/`` (those with a manifest), sorted."""
+    dirs = sorted(d for d in (Path(run_dir) / SHARDS_DIR).glob("*-of-*") if (d / MANIFEST_FILE).is_file())
+    if not dirs:
+        raise FileNotFoundError(
+            f"{Path(run_dir) / SHARDS_DIR}: no shard run directories (<k>-of-<N>/{MANIFEST_FILE})"
+        )
+    return dirs
+
+
 # -- merge --------------------------------------------------------------------------------------------------
-def _manifest(run_dir: Path) -> dict[str, Any]:
-    path = run_dir / MANIFEST_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: not a run directory (no {MANIFEST_FILE})")
-    return json.loads(path.read_text())
 
 
 def _identity(manifest: dict[str, Any]) -> dict[str, Any]:
@@ -93,18 +106,14 @@ def _identity(manifest: dict[str, Any]) -> dict[str, Any]:
 
 def _shard_id(manifest: dict[str, Any]) -> tuple[int | None, int | None]:
     extra = manifest.get("extra") or {}
-    if extra.get("shard") is not None:
-        index, count = extra["shard"]
-        return int(index), int(count)
     return extra.get("shard_index"), extra.get("num_shards")
 
 
 def _expected_keys(set_dir: Path, manifest: dict[str, Any]) -> list[tuple[str, int]]:
-    """(idx, rotation) the answerer was asked, in set order (:func:`probes.vlm.scoring.asked_items`)."""
+    """(idx, rotation) the answerer was asked, in set order (:func:`probes.vlm.selection.asked_items`)."""
     rotations = range(4) if manifest.get("circular") else range(1)
-    items = vs.read_items(set_dir)
-    asked, _ = asked_items(items, manifest)
-    return [(it.idx, r) for it in items if it.idx in asked for r in rotations]
+    asked, _ = asked_items(vs.read_items(set_dir), manifest)
+    return [(it.idx, r) for it in asked for r in rotations]
 
 
 def merge_runs(
@@ -120,7 +129,7 @@ def merge_runs(
     dirs = [Path(d) for d in run_dirs]
     if not dirs:
         raise ValueError("merge_runs: no run directories given")
-    manifests = [_manifest(d) for d in dirs]
+    manifests = [read_manifest(d) for d in dirs]
     ref = _identity(manifests[0])
     for d, m in zip(dirs[1:], manifests[1:], strict=True):
         ident = _identity(m)
@@ -152,13 +161,11 @@ def merge_runs(
         path = d / PREDICTIONS_FILE
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no predictions in shard run directory")
-        for line, obj in vs.iter_jsonl(path):
-            rec = PredictionRecord.from_dict(obj)
+        for rec in read_predictions(path):
             key = (rec.idx, int(rec.rotation))
             if key in seen:
                 raise ValueError(
-                    f"merge_runs: idx={rec.idx!r} rotation={rec.rotation} in both {seen[key]} and "
-                    f"{path}:{line}"
+                    f"merge_runs: idx={rec.idx!r} rotation={rec.rotation} in both {seen[key]} and {path}"
                 )
             seen[key], records[key] = path, rec
     m0 = manifests[0]
@@ -180,7 +187,9 @@ def merge_runs(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if (out / PREDICTIONS_FILE).exists():
-        raise FileExistsError(f"merge_runs: {out / PREDICTIONS_FILE} exists; merge into a new directory")
+        raise FileExistsError(
+            f"merge_runs: {out / PREDICTIONS_FILE} exists; merge into a new directory (or delete it to merge again)"
+        )
     merged = {
         **m0,
         "extra": {
@@ -198,10 +207,9 @@ def merge_runs(
             ],
         },
     }
-    vs.write_jsonl(
-        out / PREDICTIONS_FILE, (records[key].to_json() for key in sorted(records, key=order.__getitem__))
-    )
-    (out / MANIFEST_FILE).write_text(json.dumps(merged, indent=2, sort_keys=True))
+    lines = [records[key].to_json() + "\n" for key in sorted(records, key=order.__getitem__)]
+    write_atomic(out / PREDICTIONS_FILE, "".join(lines))
+    write_atomic(out / MANIFEST_FILE, json.dumps(merged, indent=2, sort_keys=True) + "\n")
     return {
         "shards": len(dirs),
         "predictions": len(records),
@@ -213,18 +221,37 @@ def merge_runs(
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
-        prog="python -m probes.vlm.sharding", description="Merge shard run directories."
+        prog="python -m probes.vlm.sharding",
+        description="Merge the shard run directories of one run, then score it.",
     )
     sub = p.add_subparsers(dest="command", required=True)
-    m = sub.add_parser("merge", help="merge the run directories of the shards of one run")
+    m = sub.add_parser(
+        "merge",
+        help="RUN_DIR: merge RUN_DIR/shards/* into RUN_DIR; or --out OUT SHARD_DIR...: merge those into OUT",
+    )
     m.add_argument("run_dirs", nargs="+", type=Path)
-    m.add_argument("--out", required=True, type=Path)
+    m.add_argument("--out", type=Path, default=None, help="merged run directory (default: the one RUN_DIR)")
     m.add_argument(
         "--set-dir", type=Path, default=None, help="the question set split (default: from the manifest)"
     )
-    m.add_argument("--allow-incomplete", action="store_true")
+    m.add_argument(
+        "--allow-incomplete", action="store_true", help="merge what the shards have so far (unscored)"
+    )
+    m.add_argument("--no-score", action="store_true", help="do not write scores.json")
     args = p.parse_args(argv)
-    print(json.dumps(merge_runs(args.run_dirs, args.out, args.set_dir, args.allow_incomplete), indent=2))
+    if args.out is None:
+        if len(args.run_dirs) != 1:
+            p.error("merge: several shard directories need --out")
+        out, dirs = args.run_dirs[0], shard_run_dirs(args.run_dirs[0])
+    else:
+        out, dirs = args.out, args.run_dirs
+    summary = merge_runs(dirs, out, args.set_dir, args.allow_incomplete)
+    if not args.no_score and not summary["missing"]:
+        from probes.vlm.scoring import score_run
+
+        score_run(out, args.set_dir)
+        summary["scores"] = str(Path(out) / "scores.json")
+    print(json.dumps(summary, indent=2))
 
 
 if __name__ == "__main__":

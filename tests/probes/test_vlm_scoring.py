@@ -14,7 +14,8 @@ import pytest
 from newtphys import vqa_schema as vs
 from newtphys.vqa_scoring import macro_accuracy
 from probes.vlm.bootstrap import bootstrap_ci, build_table, point_estimate
-from probes.vlm.scoring import item_results, manifest_set_dir, score_run
+from probes.vlm.predictions import manifest_set_dir
+from probes.vlm.scoring import item_results, score_run
 from tests.fixtures.vlm_runs import item, write_run, write_set
 
 MASS, HEAVIEST = "F_MASS_OBJECT", "F_MASS_HEAVIEST_OBJECT"
@@ -143,7 +144,9 @@ def test_the_set_is_found_from_either_manifest_form(tmp_path: Path) -> None:
     assert manifest_set_dir({"vqa_dir": str(set_dir), "split": "test"}) == set_dir  # the split directory
     assert manifest_set_dir({"vqa_dir": str(set_dir.parent), "split": "test"}) == set_dir  # the root + split
     with pytest.raises(
-        FileNotFoundError, match=r"no questions.jsonl in vqa_dir='/nowhere' nor in its split 'test'"
+        FileNotFoundError,
+        match=r"vqa_dir='/nowhere': no question set found \(tried /nowhere/questions.jsonl, "
+        r"/nowhere/test/questions.jsonl\)",
     ):
         manifest_set_dir({"vqa_dir": "/nowhere", "split": "test"})
 
@@ -166,7 +169,7 @@ def test_bad_runs_are_refused_with_the_file_and_key(tmp_path: Path) -> None:
     set_dir = _hand_set(tmp_path)
     run = write_run(tmp_path / "run", set_dir, {("a1/single", 0): "A"})
     (run / "predictions.jsonl").write_text((run / "predictions.jsonl").read_text() * 2)
-    with pytest.raises(ValueError, match=r"predictions.jsonl:2: duplicate prediction for idx='a1/single'"):
+    with pytest.raises(ValueError, match=r"predictions.jsonl:2: prediction for idx='a1/single' rotation=0 duplicates line 1"):
         item_results(run, set_dir)
     run2 = write_run(tmp_path / "run2", set_dir, {("nope/single", 0): "A"})
     with pytest.raises(ValueError, match=r"1 idx not in .*questions.jsonl, e.g. \['nope/single'\]"):

@@ -50,7 +50,7 @@ def test_bad_shard_arguments_name_the_allowed_range() -> None:
         shard_items(_items(), 0, 0)
 
 
-def _sharded_runs(tmp_path: Path, n: int = 3, loop_form: bool = False) -> tuple[Path, list[Path], dict]:
+def _sharded_runs(tmp_path: Path, n: int = 3) -> tuple[Path, list[Path], dict]:
     items = _items()
     letters = {it.idx: "ABCD"[k % 4] for k, it in enumerate(items)}
     set_dir = write_set(tmp_path / "vqa" / "test", items, letters)
@@ -58,7 +58,7 @@ def _sharded_runs(tmp_path: Path, n: int = 3, loop_form: bool = False) -> tuple[
     runs = []
     for k in range(n):
         mine = {(it.idx, 0): preds[(it.idx, 0)] for it in shard_items(items, k, n)}
-        extra = {"shard": [k, n], "batch_size": 8} if loop_form else {"shard_index": k, "num_shards": n}
+        extra = {"shard_index": k, "num_shards": n, "batch_size": 8}
         runs.append(write_run(tmp_path / f"shard{k}", set_dir, mine, extra=extra))
     return set_dir, runs, preds
 
@@ -77,35 +77,21 @@ def test_merged_shards_equal_the_unsharded_run(tmp_path: Path) -> None:
     lines = (tmp_path / "merged" / "predictions.jsonl").read_text()
     assert lines == (whole / "predictions.jsonl").read_text()  # same records, in set order
     manifest = json.loads((tmp_path / "merged" / "manifest.json").read_text())
-    assert "shard_index" not in manifest["extra"] and [
-        m["shard_index"] for m in manifest["extra"]["merged_from"]
-    ] == [2, 1, 0]
+    extra = manifest["extra"]
+    assert "shard_index" not in extra and "num_shards" not in extra and extra["batch_size"] == 8
+    assert [(m["shard_index"], m["num_shards"]) for m in extra["merged_from"]] == [(2, 3), (1, 3), (0, 3)]
     a, b = score_run(tmp_path / "merged", n_boot=50), score_run(whole, n_boot=50)
     assert a["strict"] == b["strict"] and a["coverage"] == b["coverage"]
     with pytest.raises(FileExistsError, match="merge into a new directory"):
         merge_runs(runs, tmp_path / "merged")
 
 
-def test_merge_reads_the_evaluation_loops_shard_key(tmp_path: Path) -> None:
-    _, runs, _ = _sharded_runs(tmp_path, 2, loop_form=True)  # extra["shard"] = [index, count]
-    assert merge_runs(runs, tmp_path / "merged")["predictions"] == 18
-    extra = json.loads((tmp_path / "merged" / "manifest.json").read_text())["extra"]
-    assert (
-        "shard" not in extra
-        and extra["batch_size"] == 8
-        and [m["shard"] for m in extra["merged_from"]] == [[0, 2], [1, 2]]
-    )
-    with pytest.raises(ValueError, match=r"num_shards=2 but shard_index \[0\]: missing \[1\]"):
-        merge_runs(runs[:1], tmp_path / "m2")
-
-
 def test_merge_refuses_disagreeing_duplicate_missing_and_incomplete(tmp_path: Path) -> None:
     set_dir, runs, _ = _sharded_runs(tmp_path)
     with pytest.raises(ValueError, match=r"num_shards=3 but shard_index \[0, 1\]: missing \[2\]"):
         merge_runs(runs[:2], tmp_path / "m1")
-    other = write_run(
-        tmp_path / "other", set_dir, {}, answerer="another-model", extra={"shard_index": 2, "num_shards": 3}
-    )
+    extra = {"shard_index": 2, "num_shards": 3, "batch_size": 8}
+    other = write_run(tmp_path / "other", set_dir, {}, answerer="another-model", extra=extra)
     with pytest.raises(
         ValueError, match=r"disagrees with .* on \['answerer', 'model'\]: answerer='another-model'"
     ):
@@ -124,6 +110,7 @@ def test_merge_refuses_disagreeing_duplicate_missing_and_incomplete(tmp_path: Pa
         merge_runs(runs, tmp_path / "b" / "m4")
     main(["merge", *map(str, runs), "--out", str(tmp_path / "b" / "m5"), "--allow-incomplete"])
     assert len((tmp_path / "b" / "m5" / "predictions.jsonl").read_text().splitlines()) == 17
+    assert not (tmp_path / "b" / "m5" / "scores.json").exists()  # an incomplete merge is not scored
 
 
 @pytest.mark.parametrize("launcher", ["vlm_slurm", "vlm_local_gpus"])

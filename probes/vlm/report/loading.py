@@ -10,14 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from probes.vlm.interface import MANIFEST_FILE, PREDICTIONS_FILE
-from probes.vlm.scoring import (
-    ItemResult,
-    asked_results,
-    item_results,
-    manifest_set_dir,
-    read_manifest,
-    score_results,
-)
+from probes.vlm.predictions import manifest_set_dir, read_manifest
+from probes.vlm.scoring import ItemResult, asked_results, item_results, score_results
 
 SIZE_KEYS_B: tuple[str, ...] = ("params_b", "size_b", "num_params_b", "parameters_b")
 """Keys of a manifest's ``model`` record read as the model size in billions of parameters."""

@@ -15,13 +15,13 @@ from probes.vlm.baselines import Blind, ConstantLetterAnswerer, RandomAnswerer, 
 from probes.vlm.evaluate import evaluate
 from probes.vlm.interface import PREDICTIONS_FILE, Generation, Prompt
 from probes.vlm.predictions import read_predictions
-from probes.vlm.simple_scores import simple_scores
+from probes.vlm.scoring import score_run
 from tests.probes.vlm.conftest import ANSWERS, write_synthetic_records
 
 
 def _run(answerer, set_dir: Path, run_dir: Path, **kw):
     evaluate(answerer, set_dir, run_dir, progress=False, **kw)
-    return read_predictions(run_dir / PREDICTIONS_FILE), simple_scores(run_dir, set_dir)
+    return read_predictions(run_dir / PREDICTIONS_FILE), score_run(run_dir, set_dir, n_boot=0)
 
 
 @pytest.mark.parametrize("circular", [False, True])

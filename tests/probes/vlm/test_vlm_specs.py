@@ -19,6 +19,7 @@ from probes.vlm.evaluate import evaluate
 from probes.vlm.hf_adapter import PaliGemmaAnswerer, build_hf_answerer, resolve_snapshot
 from probes.vlm.interface import Generation, Prompt
 from probes.vlm.predictions import read_predictions
+from probes.vlm.scoring import score_run
 from probes.vlm.specs import SPECS, VLMSpec, get_spec
 
 FAMILIES = {"qwen2_vl", "qwen2_5_vl", "llava_onevision", "llava_next", "internvl", "idefics3", "smolvlm", "paligemma"}
@@ -98,11 +99,14 @@ class _SingleImageModel:
 def test_single_image_models_get_only_single_items(vlm_set: Path, tmp_path: Path):
     model = _SingleImageModel()
     result = evaluate(model, vlm_set, tmp_path / "r", batch_size=4, progress=False)
-    assert result.items == 9 and result.skipped == {"multi": 9, "too_many_images": 0}
+    assert result.items == 9 and result.not_asked == {"multi": 9, "too_many_images": 0, "mode": 0, "limit": 0}
     assert all(len(p.images) == 1 and p.idx.endswith("/single") for p in model.seen)
     assert len(read_predictions(tmp_path / "r" / "predictions.jsonl")) == 9
     manifest = json.loads((tmp_path / "r" / "manifest.json").read_text())
-    assert manifest["extra"]["skipped_items"] == {"multi": 9, "too_many_images": 0}
+    # the manifest carries what decides the selection, so scoring and the shard merge recompute it
+    assert manifest["model"]["single_image_only"] is True and manifest["model"]["max_images"] == 1
+    scores = score_run(tmp_path / "r", vlm_set, n_boot=0)
+    assert scores["items"] == 9 and scores["coverage"]["not_asked"]["multi"] == 9
 
 
 def test_paligemma_renders_a_task_prefix_without_chat_template():

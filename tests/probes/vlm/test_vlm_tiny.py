@@ -16,7 +16,7 @@ from probes.vlm.evaluate import evaluate
 from probes.vlm.interface import PREDICTIONS_FILE
 from probes.vlm.predictions import read_predictions
 from probes.vlm.prompting import build_prompt
-from probes.vlm.simple_scores import simple_scores
+from probes.vlm.scoring import score_run
 from probes.vlm.tiny import FIXTURE_NOTE, build_tiny_answerer
 
 # visual tokens of one 24 x 32 px image (conftest's images):
@@ -61,10 +61,10 @@ def test_tiny_architecture_prompts_batches_and_manifest(arch: str, vlm_set: Path
     assert manifest["model"]["weights"] == "random" and manifest["model"]["fixture"] == FIXTURE_NOTE
     assert manifest["model"]["id"] == f"newtphys/tiny-random-{arch}" and manifest["model"]["parameters"] > 10_000
     assert result.answered == (9 if single_only else 18)
-    assert result.skipped == {"multi": 9 if single_only else 0, "too_many_images": 0}
+    assert result.not_asked == {"multi": 9 if single_only else 0, "too_many_images": 0, "mode": 0, "limit": 0}
     preds = read_predictions(tmp_path / arch / PREDICTIONS_FILE)
     assert [p.raw for p in preds[: len(prompts)]] == [g.text for g in batched]
-    scores = simple_scores(tmp_path / arch, vlm_set)
+    scores = score_run(tmp_path / arch, vlm_set, n_boot=0)
     # reported beside the trivial predictors (macro, by hand): all 18 items: A and D 5/18 (test_vlm_baselines),
     # B 1/4, C 7/36; the 9 single items (answers mass A B C, size C C C, material A A B): A (mass 1/3 + material
     # 2/3) / 2 and size 0 -> 1/4, B 1/6, C (1/3 + 0) / 2 and size 1 -> 7/12, D 0
