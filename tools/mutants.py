@@ -31,6 +31,10 @@ DEFAULT_TESTS: dict[str, tuple[str, ...]] = {
     "data_gen/sim/model.py": ("tests/sim/test_sim_batched_terms.py", "tests/sim/test_sim_freefall.py"),
     "data_gen/sim/newton.py": ("tests/sim/test_sim_batched_terms.py", "tests/sim/test_sim_freefall.py",
                                "tests/sim/test_sim_collision.py"),
+    "probes/vlm/scoring.py": ("tests/probes/test_vlm_scoring.py",),
+    "probes/vlm/prompting.py": ("tests/probes/vlm/test_vlm_baselines.py", "tests/probes/vlm/test_vlm_predictions.py",
+                                "tests/probes/test_vlm_scoring.py"),
+    "newtphys/vqa_scoring.py": ("tests/probes/vlm/test_vlm_extraction.py", "tests/probes/test_vlm_scoring.py"),
     "data_gen/sim/recording.py": (
         "tests/sim/test_sim_recording.py",
         "tests/sim/test_sim_rigid_stress.py",
@@ -203,6 +207,21 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("newton_trust_radius_ignored", "data_gen/sim/newton.py",
            "alpha = torch.clamp(trust_m / motion.clamp(min=1e-300), max=1.0)",
            "alpha = torch.ones_like(motion)"),
+    # --- VLM scoring -------------------------------------------------------------------------------
+    Mutant("vlm_bootstrap_resamples_items", "probes/vlm/scoring.py",
+           "            r.item.sequence_id,\n            r.item.question_id,\n            r.item.sub_category,\n"
+           "            r.item.category,\n            float(bool(getattr(r, key))),",
+           "            r.item.idx,\n            r.item.question_id,\n            r.item.sub_category,\n"
+           "            r.item.category,\n            float(bool(getattr(r, key))),"),
+    Mutant("vlm_circular_any_rotation", "probes/vlm/scoring.py",
+           "cs = all(p is not None and p.letter == truth for p in rots)",
+           "cs = any(p is not None and p.letter == truth for p in rots)"),
+    Mutant("vlm_rotated_letter_not_mapped_back", "probes/vlm/prompting.py",
+           "return vs.LETTERS[(vs.LETTERS.index(letter) + rotation) % len(vs.LETTERS)]",
+           "return letter"),
+    Mutant("vlm_first_letter_instead_of_last", "newtphys/vqa_scoring.py",
+           '_LAST_LETTER = re.compile(r"(?:^|[^A-Za-z])([A-Da-d])$")',
+           '_LAST_LETTER = re.compile(r"^([A-Da-d])(?:[^A-Za-z]|$)")'),
     # --- metrics ------------------------------------------------------------------------------------
     Mutant("f1_false_negatives_off_the_mask", METRICS,
            "fn = (~p & t & m).sum()",
