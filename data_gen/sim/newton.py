@@ -108,9 +108,13 @@ def minimise(
     active = torch.ones(n_isl, dtype=torch.bool)
     converged = torch.zeros(n_isl, dtype=torch.bool)
     iterations = torch.zeros(n_isl, dtype=torch.int64)
+    carried: Evaluation | None = None  # derivatives at the accepted point, from the line search's first trial
     for _ in range(settings.iterations):
-        ev = objective.evaluate(q, True)
-        counters["evaluations_with_derivatives"] += 1
+        if carried is None:
+            ev = objective.evaluate(q, True)
+            counters["evaluations_with_derivatives"] += 1
+        else:
+            ev, carried = carried, None
         if on_gradient is not None:
             on_gradient(ev.grad)
         dq, ok = newton_direction(ev.hess, ev.grad)
@@ -138,9 +142,14 @@ def minimise(
         # an update already below the tolerance is taken whole, without a search: the island has converged
         small = active & (alpha >= 1.0) & (objective.mass_norm(dq) <= settings.tolerance * scale)
         accepted = ~active | small  # islands that are done, or converging now, need no search
-        for trial_index in range(settings.line_search_steps + EXTRA_HALVINGS):
-            trial = objective.evaluate(q + alpha[:, None] * dq * (~accepted)[:, None], False).value
-            counters["evaluations"] += 1
+        searches = 0 if bool(accepted.all()) else settings.line_search_steps + EXTRA_HALVINGS
+        for trial_index in range(searches):
+            # islands accepted earlier sit at their accepted alpha (their values are not looked at); the first
+            # trial is evaluated with derivatives: when every island takes it, the next iteration starts there
+            first = trial_index == 0
+            trial_ev = objective.evaluate(q + alpha[:, None] * dq, first)
+            trial = trial_ev.value
+            counters["evaluations_with_derivatives" if first else "evaluations"] += 1
             if trial_index < settings.line_search_steps:
                 ok_t = trial <= ev.value + ARMIJO_C * alpha * slope + 1e-14 * ev.value.abs()
             else:  # Armijo failed within the preset's budget: any decrease beats standing still
@@ -150,6 +159,8 @@ def minimise(
                 counters["line_search_extended"] += int(newly.sum())
             accepted = accepted | newly
             if bool(accepted.all()):
+                if first:
+                    carried = trial_ev
                 break
             alpha = torch.where(accepted, alpha, 0.5 * alpha)
         failed_ls = active & ~accepted
