@@ -20,7 +20,7 @@ from data_gen.sim.energy.elastic import elastic
 from data_gen.sim.energy.terms import ObjectTerms
 from data_gen.sim.energy.gravity import gravity
 from data_gen.sim.energy.inertia import inertia
-from data_gen.sim.energy.pair_contact import PairSet, pair_contact
+from data_gen.sim.energy.pair_contact import PairGroups, PairSet, pair_contact
 from data_gen.sim.energy.scene_contact import contact_start, scene_contact
 from data_gen.sim.model import DofLayout, Model
 from data_gen.sim.newton import Evaluation, Objective
@@ -64,6 +64,7 @@ class StepObjective(Objective):
         self.tm_pred = tm_n + h_s * tmdot
         self.smoothing_m = smoothing_m
         self.scene_stiffness_n_m = stiffness_factor * model.mass_kg / self.h2
+        self.pair_groups = PairGroups.build(pairs, model.sphere_b) if pairs.num_pairs else None
         self.sphere_stiffness_n_m = self.scene_stiffness_n_m[:, None] * model.sphere_valid
         self.sphere_friction = model.friction[:, None].expand_as(self.sphere_stiffness_n_m).contiguous()
         self.start = contact_start(
@@ -132,7 +133,11 @@ class StepObjective(Objective):
             self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.sphere_stiffness_n_m,
             self.sphere_friction, self.start, self.smoothing_m, derivatives,
         )  # fmt: skip
-        pc = pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, derivatives) if self.pairs.num_pairs else None
+        pc = (
+            pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, derivatives, self.pair_groups)
+            if self.pairs.num_pairs
+            else None
+        )
         potential = el.energy + gr.energy + sc.terms.energy + (pc.energy if pc is not None else 0.0)
         value = self._per_island(it.energy + self.h2 * potential)
         if not derivatives:

@@ -7,7 +7,8 @@ A pair (i on a solved object, j on a solved or a frozen (sleeping) object) penet
 force and normal frozen at the start of the (sub)step.
 
 Reduced blocks are summed per object pair without a Python loop: pairs are grouped by object pair into a
-padded (groups, pairs per group) layout and reduced with batched products.
+padded (groups, pairs per group) layout (:class:`PairGroups`, built once per solve) and reduced with batched
+products.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from dataclasses import dataclass
 import torch
 
 from data_gen.sim.energy import point_terms
-from data_gen.sim.energy.terms import PairTerms, point_gradient, point_hessian
+from data_gen.sim.energy.terms import PairTerms, point_hessian
 
 FROZEN = -1  # object slot of a sleeping partner (not solved; its spheres do not move)
 
@@ -61,10 +62,11 @@ class PairSet:
 
 
 def pair_contact(
-    pairs: PairSet, x_m: torch.Tensor, b: torch.Tensor, smoothing_m: float, derivatives: bool
+    pairs: PairSet, x_m: torch.Tensor, b: torch.Tensor, smoothing_m: float, derivatives: bool,
+    pairs_groups: PairGroups | None = None,
 ) -> PairTerms:
     """Terms of every pair; ``x_m`` (n, S, 3) sphere positions and ``b`` (n, S, K) bases of the solved
-    objects."""
+    objects; ``pairs_groups`` is :meth:`PairGroups.build` of the same pairs (built here when omitted)."""
     n, _, k = b.shape
     xi, xj = pairs.positions(x_m)
     delta = xi - xj
@@ -80,46 +82,72 @@ def pair_contact(
     if not derivatives:
         return PairTerms(energy, None, None, None, None, None, -g)
     h = h_c + h_f
-    active = h.abs().sum(dim=(1, 2)) > 0
-    oi, oj = pairs.obj_i[active], pairs.obj_j[active]
-    si, sj = pairs.sph_i[active], pairs.sph_j[active]
-    ga, ha = g[active], h[active]
-    bi = b[oi, si]
-    solved_j = oj >= 0
-    bj = torch.where(solved_j[:, None], b[oj.clamp(min=0), sj], torch.zeros((), dtype=b.dtype))
+    groups = pairs_groups if pairs_groups is not None else PairGroups.build(pairs, b)
+    solved_j = pairs.obj_j >= 0
     # gradient: +g on side i, -g on a solved side j
     grad_pts = torch.zeros(n, 3, k, dtype=x_m.dtype)
-    grad_pts.index_add_(0, oi, ga[:, :, None] * bi[:, None, :])
-    grad_pts.index_add_(0, oj[solved_j], -(ga[solved_j][:, :, None] * bj[solved_j][:, None, :]))
-    # Hessian, grouped by object pair (slot j = n stands for a frozen partner)
-    key = oi * (n + 1) + torch.where(solved_j, oj, torch.full_like(oj, n))
-    groups, slot = torch.unique(key, return_inverse=True)
-    g_i, g_j = groups // (n + 1), groups % (n + 1)
-    hp, bip, bjp = _pad_by_group(slot, len(groups), ha, bi, bj)
-    diag_i = point_hessian(bip, hp)
-    diag_j = point_hessian(bjp, hp)
-    cross = -point_hessian(bip, hp, bjp)
+    grad_pts.index_add_(0, pairs.obj_i, g[:, :, None] * groups.b_i[:, None, :])
+    grad_pts.index_add_(0, pairs.obj_j[solved_j], -(g[solved_j][:, :, None] * groups.b_j[solved_j][:, None, :]))
+    # Hessian blocks summed per object pair (inactive pairs have h = 0)
+    hp = torch.zeros(groups.num_groups, groups.width, 3, 3, dtype=x_m.dtype)
+    hp[groups.slot, groups.rank] = h
+    diag_i = point_hessian(groups.b_i_padded, hp)
     hess = torch.zeros(n, 3 * k, 3 * k, dtype=x_m.dtype)
-    hess.index_add_(0, g_i, diag_i)
-    pair_groups = g_j < n
-    hess.index_add_(0, g_j[pair_groups], diag_j[pair_groups])
-    cross_rows = torch.cat([g_i[pair_groups], g_j[pair_groups]])
-    cross_cols = torch.cat([g_j[pair_groups], g_i[pair_groups]])
-    cross_blocks = torch.cat([cross[pair_groups], cross[pair_groups].transpose(1, 2)])
-    return PairTerms(energy, grad_pts, hess, cross_blocks, cross_rows, cross_cols, -g)
+    hess.index_add_(0, groups.g_i, diag_i)
+    pg = groups.pair_groups
+    if not bool(pg.any()):
+        empty = torch.zeros(0, 3 * k, 3 * k, dtype=x_m.dtype)
+        none = torch.zeros(0, dtype=torch.int64)
+        return PairTerms(energy, grad_pts, hess, empty, none, none, -g)
+    hp_pairs, bi_pairs, bj_pairs = hp[pg], groups.b_i_padded[pg], groups.b_j_padded[pg]
+    hess.index_add_(0, groups.g_j[pg], point_hessian(bj_pairs, hp_pairs))
+    cross = -point_hessian(bi_pairs, hp_pairs, bj_pairs)
+    cross_rows = torch.cat([groups.g_i[pg], groups.g_j[pg]])
+    cross_cols = torch.cat([groups.g_j[pg], groups.g_i[pg]])
+    return PairTerms(energy, grad_pts, hess, torch.cat([cross, cross.transpose(1, 2)]), cross_rows, cross_cols, -g)
 
 
-def _pad_by_group(slot: torch.Tensor, num_groups: int, *values: torch.Tensor) -> list[torch.Tensor]:
-    """Scatter rows of ``values`` into zero-padded (groups, max rows per group, ...) tensors."""
-    order = torch.argsort(slot, stable=True)
-    sorted_slot = slot[order]
-    counts = torch.bincount(sorted_slot, minlength=num_groups)
-    starts = torch.cumsum(counts, 0) - counts
-    rank = torch.arange(slot.shape[0]) - starts[sorted_slot]
-    width = int(counts.max()) if num_groups else 0
-    out = []
-    for v in values:
-        padded = torch.zeros((num_groups, width, *v.shape[1:]), dtype=v.dtype)
-        padded[sorted_slot, rank] = v[order]
-        out.append(padded)
-    return out
+@dataclass(frozen=True)
+class PairGroups:
+    """The pairs of a :class:`PairSet` grouped by object pair (fixed for a solve): per pair its group
+    ``slot`` and ``rank`` in the group, the groups' objects ``g_i`` / ``g_j`` (``g_j = n`` for a frozen
+    partner), and the sphere bases of both sides, per pair (P, K) and padded per group (G, W, K)."""
+
+    slot: torch.Tensor
+    rank: torch.Tensor
+    g_i: torch.Tensor
+    g_j: torch.Tensor
+    pair_groups: torch.Tensor
+    b_i: torch.Tensor
+    b_j: torch.Tensor
+    b_i_padded: torch.Tensor
+    b_j_padded: torch.Tensor
+
+    @property
+    def num_groups(self) -> int:
+        return int(self.g_i.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.b_i_padded.shape[1])
+
+    @staticmethod
+    def build(pairs: PairSet, b: torch.Tensor) -> PairGroups:
+        n = b.shape[0]
+        solved_j = pairs.obj_j >= 0
+        b_i = b[pairs.obj_i, pairs.sph_i]
+        b_j = torch.where(solved_j[:, None], b[pairs.obj_j.clamp(min=0), pairs.sph_j], torch.zeros((), dtype=b.dtype))
+        key = pairs.obj_i * (n + 1) + torch.where(solved_j, pairs.obj_j, torch.full_like(pairs.obj_j, n))
+        groups, slot = torch.unique(key, return_inverse=True)
+        counts = torch.bincount(slot, minlength=len(groups))
+        order = torch.argsort(slot, stable=True)
+        starts = torch.cumsum(counts, 0) - counts
+        rank = torch.empty_like(slot)
+        rank[order] = torch.arange(slot.shape[0]) - starts[slot[order]]
+        width = int(counts.max()) if len(groups) else 0
+        b_i_padded = torch.zeros(len(groups), width, b.shape[2], dtype=b.dtype)
+        b_j_padded = torch.zeros_like(b_i_padded)
+        b_i_padded[slot, rank] = b_i
+        b_j_padded[slot, rank] = b_j
+        g_j = groups % (n + 1)
+        return PairGroups(slot, rank, groups // (n + 1), g_j, g_j < n, b_i, b_j, b_i_padded, b_j_padded)
