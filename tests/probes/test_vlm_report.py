@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import os
 import subprocess
 import sys
@@ -177,6 +178,9 @@ def test_cli_writes_markdown_csv_png_without_pyplot(runs_dir: Path) -> None:
     assert "PYPLOT False True" in proc.stdout
     md = (out / "report.md").read_text()
     assert "| M1 | 16 | 16/16 | 0.750 |" in md and "not enough items" in md
+    # every run here covers fewer than 10 sequences: the report says its intervals are not to be relied on
+    warning = re.search(r"\*\*Warning:\*\* some runs cover only ([0-9, ]+) sequence\(s\)", md)
+    assert warning and all(0 < int(v) < 10 for v in warning.group(1).split(", "))
     for name in (
         "per_category",
         "by_model_rank",

@@ -92,6 +92,10 @@ def _figure(t: Table, out: Path) -> list[Path]:
     return []
 
 
+MIN_SEQUENCES_FOR_CI = 10
+"""Below this many sequences the report warns that its bootstrap intervals are not to be relied on."""
+
+
 def _safe(name: str) -> str:
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
 
@@ -111,6 +115,15 @@ def write_report(runs: Sequence[Run], out: Path, tables: Sequence[Table]) -> dic
         "| rule |"
     )
     parts = ["# VLM evaluation report", "", intro, "", header, "|---|---|---|---|---|---|---|---|---|---|"]
+    few = sorted({int(r.scores["strict"].get("n_sequences") or 0) for r in runs
+                  if int(r.scores["strict"].get("n_sequences") or 0) < MIN_SEQUENCES_FOR_CI})  # fmt: skip
+    if few:
+        parts[4:4] = [
+            f"**Warning:** some runs cover only {', '.join(map(str, few))} sequence(s); a bootstrap over fewer than "
+            f"{MIN_SEQUENCES_FOR_CI} sequences is not a confidence interval to rely on (a macro mean over few "
+            "sequences can even sit at the edge of its own interval).",
+            "",
+        ]
     summary: dict[str, Any] = {}
     for run in runs:
         s = run.scores
