@@ -59,16 +59,27 @@ def estimated_collisions(scenario: Scenario) -> float:
     return rate * len(scenario.objects)
 
 
+VOLUME_SAMPLES = 40_000
+"""Points of the Monte Carlo volume estimate (a 3 mm wall filling 3% of its box: ~3% standard error)."""
 _VOLUMES: dict[str, float] = {}
 
 
-def object_mass_kg(asset: str, size_m: float, density_kg_m3: float) -> float:
-    """Mass of a library object drawn at ``size_m`` (m): density x the canonical volume scaled by size^3
-    (the canonical volume is meshed once per asset and cached on disk)."""
+def unit_volume(asset: str) -> float:
+    """Volume of the material of library object ``asset`` per cubed largest extent (dimensionless): the
+    fraction of seeded uniform points in its bounds where the SDF is negative, times the box volume. An
+    estimate (the simulator meshes the shape, ~1 s per object): the dry run must stay fast."""
     if asset not in _VOLUMES:
         a = get_object(asset)
-        _VOLUMES[asset] = a.volume_m3() / a.nominal_size_m**3
-    return float(density_kg_m3 * _VOLUMES[asset] * size_m**3)
+        lo, hi = (np.asarray(b, np.float64) for b in a.shape.bounds())
+        p = np.random.default_rng(0).uniform(lo, hi, size=(VOLUME_SAMPLES, 3))
+        inside = float((a.shape.sdf(p) < 0.0).mean())
+        _VOLUMES[asset] = inside * float(np.prod(hi - lo)) / a.nominal_size_m**3
+    return _VOLUMES[asset]
+
+
+def object_mass_kg(asset: str, size_m: float, density_kg_m3: float) -> float:
+    """Estimated mass, kg, of library object ``asset`` drawn at largest extent ``size_m`` (m)."""
+    return float(density_kg_m3 * unit_volume(asset) * size_m**3)
 
 
 def scenario_record(scenario: Scenario, attempt: int) -> dict[str, Any]:

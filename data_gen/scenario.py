@@ -479,9 +479,9 @@ def camera_view_is_clear(
     and sees at least one object's spawn centre: the segment to it, up to the object's bounding radius,
     stays outside walls, boxes and the floor (a camera behind a room's wall saw nothing and its sequence
     was simulated for nothing, then rejected as out of view)."""
-    w2c = path_from_spec(camera, num_frames, fps)
     frames = np.unique(np.linspace(0, num_frames - 1, min(num_frames, _CHECK_FRAMES)).round().astype(int))
-    eyes = np.einsum("fji,fj->fi", w2c[frames, :3, :3], -w2c[frames, :3, 3])  # camera centres -R^T t, (F, 3)
+    w2c = path_from_spec(camera, num_frames, fps, frames)
+    eyes = np.einsum("fji,fj->fi", w2c[:, :3, :3], -w2c[:, :3, 3])  # camera centres -R^T t, (F, 3)
     if float(scene.sdf(eyes).min()) < CAMERA_CLEARANCE_M:
         return False
     centres = np.array([c for c, _ in placed])  # (O, 3)

@@ -14,6 +14,7 @@ imports this module, so the package's imports form no cycle.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 from data_gen.assets.captured import captured_scene
@@ -75,9 +76,16 @@ def get_scene_layout(name: str) -> SceneLayout:
             f"unknown scene layout {name!r}; valid layouts: {', '.join(list_scene_layouts())}, "
             f"or a reference <scheme>:<path> with scheme in {sorted(LAYOUT_LOADERS)}"
         )
-    if name in list_variant_layouts():
-        return variant_layout(name)
-    return LAYOUT_LOADERS.get(_scheme(name), layout)(name)
+    if _scheme(name) in LAYOUT_LOADERS:
+        return LAYOUT_LOADERS[_scheme(name)](name)
+    return _catalogue_layout(name)
+
+
+@functools.lru_cache(maxsize=None)
+def _catalogue_layout(name: str) -> SceneLayout:
+    """A catalogue layout, built once per process (layouts are immutable; scenario sampling looks them up
+    once per draw)."""
+    return variant_layout(name) if name in list_variant_layouts() else layout(name)
 
 
 def list_scene_layouts() -> list[str]:

@@ -336,16 +336,31 @@ class Transformed(Shape):
                 f"Transformed: translation_m must be 3 finite values in m, got {self.translation_m}"
             )
 
+    @property
+    def _matrix(self) -> F64:
+        """The rotation matrix, computed once per shape (the shape is immutable; read-only array)."""
+        m = self.__dict__.get("_matrix_cache")
+        if m is None:
+            m = quat_to_matrix(self.rotation_wxyz)
+            m.flags.writeable = False
+            object.__setattr__(self, "_matrix_cache", m)
+        return m
+
     def _sdf_part(self, p: F64) -> tuple[F64, I32]:
         # R^T (p - t), row-vector form
-        local = (p - np.asarray(self.translation_m)) @ quat_to_matrix(self.rotation_wxyz)
+        local = (p - np.asarray(self.translation_m)) @ self._matrix
         return self.child._sdf_part(local)
 
     def bounds(self) -> F64:
+        cached = self.__dict__.get("_bounds_cache")
+        if cached is not None:
+            return cached.copy()
         b = self.child.bounds()
         corners = np.array(list(itertools.product(*zip(b[0], b[1]))))
-        world = corners @ quat_to_matrix(self.rotation_wxyz).T + np.asarray(self.translation_m)
-        return np.stack([world.min(axis=0), world.max(axis=0)])
+        world = corners @ self._matrix.T + np.asarray(self.translation_m)
+        out = np.stack([world.min(axis=0), world.max(axis=0)])
+        object.__setattr__(self, "_bounds_cache", out.copy())
+        return out
 
     def part_ids(self) -> tuple[int, ...]:
         return self.child.part_ids()
