@@ -105,3 +105,15 @@ def test_enclosures_keep_objects_inside() -> None:
                 assert face > half
                 p[0, axis] = sign * (face + 0.005)
                 assert scene.sdf(p)[0] == pytest.approx(-0.005, abs=1e-9)
+
+
+def test_hollow_families_are_shells() -> None:
+    hollow = [n for n, row in FAMILY_SPECS.items() if row[6] is not None]
+    assert len(hollow) >= 10
+    assert all(get_object(n).is_hollow == (FAMILY_SPECS[n][6] is not None) for n in family_names())
+    a = get_object("soccer_ball")  # sphere r = 0.11 m, wall 4 mm: the wall's volume, not the ball's
+    assert a.shape.thickness_m == 0.004
+    from data_gen.dry_run import unit_volume
+
+    exact = 4 / 3 * np.pi * (0.11**3 - 0.106**3) / a.nominal_size_m**3
+    assert unit_volume("soccer_ball") == pytest.approx(exact, rel=0.05)  # Monte Carlo estimate (dry run)
