@@ -125,6 +125,9 @@ class ScenarioConfig:
     duration_mean_s: float | None
     """Mean of the drawn length, s: a power law truncated to ``duration_s`` with this mean (many short
     sequences, a tail of long ones; :func:`sample_duration_s`); None: uniform."""
+    pile_radius_m: float | None
+    """A pile: every object after the first is placed within this horizontal distance (m) of the first one's
+    spot, in the same region, stacked by its drop height (objects land on each other); None: anywhere."""
     mixture: Mapping[str, Mapping[str, Any]] | None
     """Component name -> {weight: w, <any key above>: value}: each sequence first draws a component by weight,
     then is drawn from this config with the component's keys changed (None: not a mixture)."""
@@ -165,6 +168,8 @@ class ScenarioConfig:
             raise ScenarioError(f"scenario '{self.name}': object_library must be one of {OBJECT_LIBRARIES}, "
                                 f"got {self.object_library!r}")
         _check_duration(self)
+        if self.pile_radius_m is not None and not (np.isfinite(self.pile_radius_m) and self.pile_radius_m >= 0):
+            raise ScenarioError(f"scenario '{self.name}': pile_radius_m must be >= 0 m or null, got {self.pile_radius_m}")
         if self.mixture is not None:
             self.components()  # builds and checks every component
         _check_names(self.name, "scene", self.scenes, check_scene_reference, list_scene_layouts(),
@@ -392,8 +397,16 @@ def sample_scenario(
         centre_local = 0.5 * (lo + hi)
         radius = 0.5 * float(np.linalg.norm(hi - lo))
         for _ in range(cfg.max_placement_tries):
-            region = scene.regions[int(rng_obj.integers(len(scene.regions)))]
-            p = region.sample(1, rng_obj)[0]
+            if cfg.pile_radius_m is not None and placed:  # a pile: over the first object's spot, in its region
+                region = pile_region
+                p = region.sample(1, rng_obj)[0]
+                r, a = cfg.pile_radius_m * np.sqrt(rng_obj.uniform()), rng_obj.uniform(0.0, 2.0 * np.pi)
+                p[:2] = np.clip(placed[0][0][:2] + r * np.array([np.cos(a), np.sin(a)]), region.min_m[:2],
+                                region.max_m[:2])
+            else:
+                region = scene.regions[int(rng_obj.integers(len(scene.regions)))]
+                p = region.sample(1, rng_obj)[0]
+                pile_region = region
             support_z = float(region.min_m[2])
             clearance = 0.005 if motion == "push" else _uniform(rng_obj, cfg.drop_height_m)
             p[2] = support_z + radius + clearance

@@ -42,9 +42,13 @@ class DatasetStats:
     camera_speed_m_s: list[float] = field(default_factory=list)
     visible_fraction: list[float] = field(default_factory=list)
     gravity_m_s2: dict[str, list[float]] = field(default_factory=dict)
+    collisions_per_object_by_scenario: dict[str, list[float]] = field(default_factory=dict)
+    """Collision events per object of each sequence, by the scenario (mixture component) that drew it."""
 
     def add(self, ws: WorldState) -> None:
         self.splits[ws.split] += 1
+        kind = str(ws.extra.get("scenario") or "unknown")
+        self.collisions_per_object_by_scenario.setdefault(kind, []).append(len(ws.collisions) / max(len(ws.objects), 1))
         self.frames += ws.num_frames
         self.collisions_per_sequence.append(len(ws.collisions))
         self.objects_per_sequence.append(len(ws.objects))
@@ -88,6 +92,8 @@ class DatasetStats:
             "gravity_m_s2": {k: stat(v) for k, v in self.gravity_m_s2.items()},
             "materials": dict(self.materials.most_common()),
             "categories": dict(self.categories.most_common()),
+            "collisions_per_object_by_scenario": {k: stat(v) | {"sequences": len(v)}
+                                                  for k, v in sorted(self.collisions_per_object_by_scenario.items())},
             "paper_comparison": paper_comparison(self),
         }
 
