@@ -223,28 +223,55 @@ def format_summary(summary: dict[str, Any], seconds: float) -> str:
     return "\n".join(lines)
 
 
-def run_dry_run(cfg, progress: bool | None = None) -> dict[str, Any]:
+def _draw_records(cfg, slots: Sequence[int]) -> list[dict[str, Any]]:
+    from data_gen.generator import draw_scenario
+
+    out = []
+    for slot in slots:
+        scenario, attempt, _ = draw_scenario(cfg, slot)
+        out.append(scenario_record(scenario, attempt))
+    return out
+
+
+PARALLEL_MIN_SLOTS = 400
+"""Dry runs of at least this many slots draw in one process per CPU (slots are independent: same lines)."""
+
+
+def run_dry_run(cfg, progress: bool | None = None, workers: int | None = None) -> dict[str, Any]:
     """Draw every slot of ``cfg`` (a ``GenerationConfig``; its shard range when set), write
-    ``<out_dir>/<split>/dry_run.jsonl`` and ``dry_run_summary.json``, print the table; returns the summary."""
-    from data_gen.generator import draw_scenario, slots_of
+    ``<out_dir>/<split>/dry_run.jsonl`` and ``dry_run_summary.json``, print the table; returns the summary.
+    ``workers``: processes (default: the CPUs, for >= ``PARALLEL_MIN_SLOTS`` slots); the lines do not depend on it."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from data_gen.generator import slots_of
 
     t0 = time.perf_counter()
-    stats = DryRunStats()
+    slots = list(slots_of(cfg))
+    if workers is None:
+        workers = min(os.cpu_count() or 1, 16) if len(slots) >= PARALLEL_MIN_SLOTS else 1
+    chunks = [slots[i:i + 50] for i in range(0, len(slots), 50)]
+    show = cfg.progress if progress is None else progress
     records: list[dict[str, Any]] = []
-    slots = slots_of(cfg)
-    for slot in tqdm(slots, desc=f"dry run {cfg.split}", unit="seq", disable=not (cfg.progress if progress is None
-                                                                                      else progress)):
-        scenario, attempt, _ = draw_scenario(cfg, slot)
-        rec = scenario_record(scenario, attempt)
+    with tqdm(total=len(slots), desc=f"dry run {cfg.split}", unit="seq", disable=not show) as bar:
+        if workers <= 1:
+            for chunk in chunks:
+                records += _draw_records(cfg, chunk)
+                bar.update(len(chunk))
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                for chunk, part in zip(chunks, pool.map(_draw_records, [cfg] * len(chunks), chunks)):
+                    records += part
+                    bar.update(len(chunk))
+    stats = DryRunStats()
+    for rec in records:
         stats.add(rec)
-        records.append(rec)
     split_dir = cfg.out_dir / cfg.split
     path = write_jsonl_atomic(split_dir / DRY_RUN_FILE, records)
     seconds = time.perf_counter() - t0
-    summary = stats.summary() | {"seconds": seconds, "jsonl": str(path)}
+    summary = stats.summary() | {"seconds": seconds, "workers": workers, "jsonl": str(path)}
     tmp = split_dir / f"{DRY_RUN_SUMMARY}.tmp-{os.getpid()}"
     tmp.write_text(json.dumps(summary, indent=1))
     os.replace(tmp, split_dir / DRY_RUN_SUMMARY)
     print(format_summary(summary, seconds))
-    print(f"wrote {path} ({len(records)} scenarios) and {split_dir / DRY_RUN_SUMMARY}")
+    print(f"wrote {path} ({len(records)} scenarios, {workers} process(es)) and {split_dir / DRY_RUN_SUMMARY}")
     return summary

@@ -159,3 +159,13 @@ def test_scenario_record_masses() -> None:
         a = get_object(o.asset, size_m=o.size_m)
         exact = o.density_kg_m3 * a.volume_m3()  # the simulator's mass: meshed volume x density
         assert m == pytest.approx(exact, rel=0.05), o.asset
+
+
+def test_dry_run_lines_do_not_depend_on_the_process_count(tmp_path: Path) -> None:
+    cfg = generation_config(*BENCH, "num_sequences=6", "sequences_per_shard=3", f"out_dir={tmp_path / 'one'}")
+    run_dry_run(cfg, progress=False, workers=1)
+    two = dataclasses.replace(cfg, out_dir=tmp_path / "two")
+    summary = run_dry_run(two, progress=False, workers=2)
+    assert summary["workers"] == 2
+    a = (tmp_path / "one" / "train" / DRY_RUN_FILE).read_bytes()
+    assert a == (tmp_path / "two" / "train" / DRY_RUN_FILE).read_bytes() and a.count(b"\n") == 6
