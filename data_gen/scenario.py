@@ -317,6 +317,18 @@ def _message(error: Exception) -> str:
     return str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
 
 
+SELF_WEIGHT_STRAIN_LIMIT = 0.8
+"""Largest self-weight strain rho |g| L / E of a drawn object (L: its largest extent). The simulator refuses
+objects above 1.0 (they would collapse under their own weight; ``data_gen/sim/world.py``), which ended the
+whole job; 0.8 keeps a margin for the extent of its interior points."""
+
+
+def min_young_modulus_pa(density_kg_m3: float, gravity_m_s2: float, size_m: float) -> float:
+    """The softest modulus (Pa) an object of this density (kg/m^3) and largest extent (m) may have under
+    gravity of this magnitude (m/s^2): drawn moduli below it are raised to it."""
+    return density_kg_m3 * gravity_m_s2 * size_m / SELF_WEIGHT_STRAIN_LIMIT
+
+
 def gravity_for_split(split: str, mode: str, rng: np.random.Generator) -> tuple[float, float, float]:
     """Earth: (0, 0, -9.81). OOD: magnitude uniform in OOD_GRAVITY_RANGE_M_S2, pointing down."""
     if mode == "earth":
@@ -372,6 +384,7 @@ def sample_scenario(
             f"num_frames must be in [1, {int(schema.MAX_SEQUENCE_SECONDS * fps)}] "
             f"({schema.MAX_SEQUENCE_SECONDS:g} s at {fps:g} FPS), got {num_frames}"
         )
+    gravity = gravity_for_split(split, gravity_mode, rng_g)  # its own stream: drawing it first changes nothing
     scene_name = cfg.scenes[int(rng_scene.integers(len(cfg.scenes)))]
     scene = get_scene_layout(scene_name)
     pool = list(cfg.objects or object_pool(cfg.object_library))
@@ -391,6 +404,7 @@ def sample_scenario(
             asset = asset.scaled_to(size)
         material = asset.allowed_materials[int(rng_obj.integers(len(asset.allowed_materials)))]
         E, nu, rho = sample_material(material, rng_obj)
+        E = max(E, min_young_modulus_pa(rho, float(np.linalg.norm(gravity)), size))  # no draw: streams unchanged
         motion = motions[int(rng_obj.choice(len(motions), p=weights / weights.sum()))]
         orientation = _random_quat(rng_obj) if cfg.random_orientation and motion != "push" else _yaw_quat(rng_obj)
         lo, hi = (np.asarray(b, np.float64) for b in asset.shape.bounds())
@@ -474,7 +488,7 @@ def sample_scenario(
         )
     return Scenario(
         sequence_id=sequence_id, seed=seed, split=split, scene=scene_name, objects=tuple(objects),
-        gravity_m_s2=gravity_for_split(split, gravity_mode, rng_g), camera=camera, num_frames=num_frames,
+        gravity_m_s2=gravity, camera=camera, num_frames=num_frames,
         fps=float(fps), image_size=(int(image_size[0]), int(image_size[1])), kind=cfg.name,
     )
 

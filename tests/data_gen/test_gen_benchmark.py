@@ -38,7 +38,10 @@ def test_2000_benchmark_scenarios_match_the_paper_ranges(drawn) -> None:
     # mean length 2.65 s = 730K frames / 11K sequences / 25 FPS; standard error of 2000 draws ~0.014 s
     assert PAPER.mean_duration_s == pytest.approx(2.6545, abs=1e-3)
     assert seconds.mean() == pytest.approx(PAPER.mean_duration_s, abs=0.06)
-    assert young.min() < 1.5e3 and young.max() > 1e11  # from very soft to steel
+    assert young.min() < 2e3 and young.max() > 1e11  # from very soft to steel
+    # no object softer than its own weight allows (the simulator refuses strain rho g L / E > 1: a whole job died)
+    strain = [o.density_kg_m3 * 9.81 * o.size_m / o.young_modulus_pa for s in drawn for o in s.objects]
+    assert max(strain) <= 0.8 * (1 + 1e-12)
     assert 0.2 < (young < 1e5).mean() < 0.6 and (young < 1e4).mean() > 0.05  # a real share of soft objects
     cams = [s.camera.kind for s in drawn]
     assert 0.15 < cams.count("static") / len(cams) < 0.4 and {"orbit", "dolly", "handheld", "pan"} <= set(cams)
