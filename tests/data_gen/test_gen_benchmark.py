@@ -59,8 +59,9 @@ def test_component_settings_apply_to_their_draws(drawn) -> None:
     pushes = [s for s in drawn if s.kind == "benchmark/push"]
     assert all(o.motion in ("push", "drop") for s in pushes for o in s.objects)
     assert all(s.scene in comps["throw"].scenes for s in drawn if s.kind == "benchmark/throw")
-    # weights 0.2 / 0.2 / 0.25 / 0.35: the pile share of 2000 draws within 4 standard errors (0.0107 each)
-    assert len(piles) / len(drawn) == pytest.approx(0.35, abs=0.043)
+    # weights 0.2 / 0.15 / 0.2 / 0.45: the pile share of 2000 draws within 4 standard errors (0.0111 each);
+    # impossible placements redraw the component, piles most often, so the share may only fall below
+    assert 0.45 - 0.045 < len(piles) / len(drawn) <= 0.45 + 0.045
 
 
 def test_paper_resolution_intrinsics() -> None:
@@ -161,7 +162,8 @@ def test_scenario_record_masses() -> None:
     for o, m in zip(s.objects, rec["masses_kg"]):
         a = get_object(o.asset, size_m=o.size_m)
         exact = o.density_kg_m3 * a.volume_m3()  # the simulator's mass: meshed volume x density
-        assert m == pytest.approx(exact, rel=0.05), o.asset
+        # Monte Carlo volume (40K points): ~1% on solids, a few % on thin walls (a 1.5 mm bag wall: 6%)
+        assert m == pytest.approx(exact, rel=0.1 if a.is_hollow else 0.03), o.asset
 
 
 def test_dry_run_lines_do_not_depend_on_the_process_count(tmp_path: Path) -> None:
