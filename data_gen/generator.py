@@ -214,12 +214,10 @@ def default_cache_root() -> Path:
 
 def run_generation(cfg: GenerationConfig) -> GenerationReport:
     split_dir = cfg.out_dir / cfg.split
-    if cfg.dry_run:
+    if cfg.dry_run:  # draw and summarise only (data_gen.dry_run): nothing is meshed, simulated or written but JSONL
         from data_gen.dry_run import run_dry_run
 
-        enable_disk_cache(default_cache_root() / "meshes")
-        summary = run_dry_run(cfg)
-        return GenerationReport(dry_run=summary)
+        return GenerationReport(dry_run=run_dry_run(cfg))
     enable_disk_cache(default_cache_root() / "meshes")  # meshes are shared by parallel jobs and later runs
     report = GenerationReport()
     shard_ids = list(cfg.shard_range())
