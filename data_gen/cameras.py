@@ -176,13 +176,18 @@ def _jitter(spec: CameraPathSpec, times_s: NDArray[np.float64], phase_shift: flo
     return spec.jitter_m * waves.sum(axis=2) / HANDHELD_TERMS
 
 
-def path_from_spec(spec: CameraPathSpec, num_frames: int, fps: float) -> NDArray[np.float64]:
-    """World-to-camera matrices (num_frames, 4, 4) of ``spec`` sampled at ``fps`` frames per second."""
+def path_from_spec(spec: CameraPathSpec, num_frames: int, fps: float,
+                   frames: ArrayLike | None = None) -> NDArray[np.float64]:
+    """World-to-camera matrices (num_frames, 4, 4) of ``spec`` sampled at ``fps`` frames per second; with
+    ``frames`` (indices in [0, num_frames)) only those frames' matrices (len(frames), 4, 4), the same values."""
     if num_frames < 1:
         raise ValueError(f"num_frames must be >= 1, got {num_frames}")
     if not (np.isfinite(fps) and fps > 0.0):
         raise ValueError(f"fps must be > 0, got {fps}")
-    t = np.arange(num_frames) / float(fps)
+    index = np.arange(num_frames) if frames is None else np.asarray(frames, np.int64)
+    if index.ndim != 1 or not len(index) or index.min() < 0 or index.max() >= num_frames:
+        raise ValueError(f"frames must be indices in [0, {num_frames}), got {frames}")
+    t = index / float(fps)
     target = np.asarray(spec.look_target_m, np.float64)
     azimuth = spec.azimuth_rad + (spec.orbit_rate_rad_s * t if spec.kind == "orbit" else 0.0 * t)
     offset = np.stack(
@@ -190,7 +195,7 @@ def path_from_spec(spec: CameraPathSpec, num_frames: int, fps: float) -> NDArray
         axis=1,
     )
     if spec.kind == "dolly":
-        duration = max(t[-1], 1e-12)
+        duration = max((num_frames - 1) / float(fps), 1e-12)
         offset *= (1.0 + (spec.dolly_end_ratio - 1.0) * t / duration)[:, None]
     eyes = target + offset
     looks = np.broadcast_to(target, eyes.shape).copy()

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from data_gen.assets.meshing import enable_disk_cache
 from data_gen.pipeline import RenderSettings, SequenceRejected, generate_sequence
-from data_gen.scenario import ScenarioConfig, ScenarioError, sample_scenario
+from data_gen.scenario import Scenario, ScenarioConfig, ScenarioError, sample_scenario
 from data_gen.sim.presets import QualityPreset
 from newtphys import __version__, schema
 from newtphys.shards import ShardReader, ShardWriter, read_index, update_index, ShardError
@@ -61,6 +61,11 @@ class GenerationConfig:
     skinning_cache_dir: str | None = None
     progress: bool = True
     config_yaml: str = ""
+    dry_run: bool = False
+    """Draw and summarise every scenario without simulating (``data_gen.dry_run``)."""
+    num_jobs: int | None = None
+    """Cluster runs: the split's shards are cut into this many contiguous, disjoint ranges; ``job`` picks one."""
+    job: int | None = None
 
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any], config_yaml: str = "") -> GenerationConfig:
@@ -92,6 +97,17 @@ class GenerationConfig:
             shards = (int(shards[0]), int(shards[1]))
             if not 0 <= shards[0] < shards[1] <= num_shards:
                 raise ValueError(f"generate config: shards {list(shards)} must satisfy 0 <= first < stop <= {num_shards}")
+        num_jobs, job = cfg.get("num_jobs"), cfg.get("job")
+        if (num_jobs is None) != (job is None):
+            raise ValueError(f"generate config: num_jobs and job go together, got num_jobs={num_jobs}, job={job}")
+        if num_jobs is not None:
+            num_jobs, job = int(num_jobs), int(job)
+            if shards is not None:
+                raise ValueError("generate config: give shards or num_jobs/job, not both")
+            if not 1 <= num_jobs <= num_shards or not 0 <= job < num_jobs:
+                raise ValueError(f"generate config: need 1 <= num_jobs <= {num_shards} (shards of the split) and "
+                                 f"0 <= job < num_jobs, got num_jobs={num_jobs}, job={job}")
+            shards = job_shard_range(num_shards, num_jobs, job)
         quality = dict(need("quality"))
         render = dict(need("render"))
         known = set(RenderSettings.__dataclass_fields__)
@@ -105,7 +121,7 @@ class GenerationConfig:
             max_attempts=ints["max_attempts"], scenario=ScenarioConfig.from_mapping(dict(need("scenario"))),
             quality=QualityPreset(**quality), render=RenderSettings(**render),
             skinning_cache_dir=cfg.get("skinning_cache_dir"), progress=bool(cfg.get("progress", True)),
-            config_yaml=config_yaml,
+            config_yaml=config_yaml, dry_run=bool(cfg.get("dry_run", False)), num_jobs=num_jobs, job=job,
         )
 
     @property
@@ -114,6 +130,37 @@ class GenerationConfig:
 
     def shard_range(self) -> range:
         return range(*(self.shards or (0, self.num_shards)))
+
+
+def job_shard_range(num_shards: int, num_jobs: int, job: int) -> tuple[int, int]:
+    """[first, stop) shards of job ``job`` of ``num_jobs``: contiguous, disjoint, covering every shard, sizes
+    differing by at most one (the first ``num_shards % num_jobs`` jobs take one more)."""
+    base, extra = divmod(num_shards, num_jobs)
+    first = job * base + min(job, extra)
+    return first, first + base + (1 if job < extra else 0)
+
+
+def slots_of(cfg: GenerationConfig) -> range:
+    """Sequence slots of the config's shard range."""
+    first, stop = cfg.shards or (0, cfg.num_shards)
+    return range(first * cfg.sequences_per_shard, min(stop * cfg.sequences_per_shard, cfg.num_sequences))
+
+
+def draw_scenario(cfg: GenerationConfig, slot: int, first_attempt: int = 0) -> tuple[Scenario, int, list[str]]:
+    """The scenario of slot ``slot``: the first attempt from ``first_attempt`` on whose placement succeeds.
+    Returns it, its attempt and the messages of the placements that failed; raises RuntimeError after
+    ``max_attempts``. The generator and the dry run both draw through here."""
+    sequence_id = f"{cfg.split}-{slot:06d}"
+    failed: list[str] = []
+    for attempt in range(first_attempt, cfg.max_attempts):
+        seed = slot_seed(cfg.seed, cfg.split, slot, attempt)
+        try:
+            return (sample_scenario(cfg.scenario, sequence_id, seed, cfg.split, cfg.gravity, cfg.num_frames, cfg.fps,
+                                    cfg.image_size), attempt, failed)
+        except ScenarioError as e:
+            failed.append(str(e))
+    raise RuntimeError(f"{sequence_id}: no placement in attempts {first_attempt}..{cfg.max_attempts - 1}: "
+                       f"{failed[-1] if failed else ''}; loosen the scenario or raise max_attempts")
 
 
 def slot_seed(run_seed: int, split: str, slot: int, attempt: int) -> int:
@@ -129,8 +176,12 @@ class GenerationReport:
     sequences: int = 0
     rejections: Counter = field(default_factory=Counter)
     timings_s: Counter = field(default_factory=Counter)
+    dry_run: dict[str, Any] | None = None
+    """The statistics of a dry run (nothing generated)."""
 
     def summary(self) -> str:
+        if self.dry_run is not None:
+            return f"dry run: {self.dry_run['sequences']} scenarios drawn, nothing simulated ({self.dry_run['jsonl']})"
         per_seq = {k: v / max(self.sequences, 1) for k, v in self.timings_s.items()}
         times = ", ".join(f"{k} {v:.2f}" for k, v in per_seq.items())
         return (f"wrote {len(self.written_shards)} shard(s) ({self.sequences} sequences), skipped "
@@ -163,6 +214,10 @@ def default_cache_root() -> Path:
 
 def run_generation(cfg: GenerationConfig) -> GenerationReport:
     split_dir = cfg.out_dir / cfg.split
+    if cfg.dry_run:  # draw and summarise only (data_gen.dry_run): nothing is meshed, simulated or written but JSONL
+        from data_gen.dry_run import run_dry_run
+
+        return GenerationReport(dry_run=run_dry_run(cfg))
     enable_disk_cache(default_cache_root() / "meshes")  # meshes are shared by parallel jobs and later runs
     report = GenerationReport()
     shard_ids = list(cfg.shard_range())
@@ -198,19 +253,21 @@ def run_generation(cfg: GenerationConfig) -> GenerationReport:
 
 def _generate_slot(cfg: GenerationConfig, slot: int, split_dir: Path, report: GenerationReport):
     sequence_id = f"{cfg.split}-{slot:06d}"
-    for attempt in range(cfg.max_attempts):
-        seed = slot_seed(cfg.seed, cfg.split, slot, attempt)
+    attempt = 0
+    while attempt < cfg.max_attempts:
         try:
-            scenario = sample_scenario(cfg.scenario, sequence_id, seed, cfg.split, cfg.gravity, cfg.num_frames,
-                                       cfg.fps, cfg.image_size)
+            scenario, attempt, failed = draw_scenario(cfg, slot, attempt)
+        except RuntimeError as e:
+            _reject(cfg, split_dir, report, sequence_id, cfg.max_attempts - 1, "placement", str(e))
+            break
+        for k, message in enumerate(failed):  # impossible placements before this attempt
+            _reject(cfg, split_dir, report, sequence_id, attempt - len(failed) + k, "placement", message)
+        try:
             t0 = time.perf_counter()
             seq, timings = generate_sequence(scenario, cfg.quality, cfg.render, cfg.skinning_cache_dir)
-        except (SequenceRejected, ScenarioError) as e:
-            reason = e.reason if isinstance(e, SequenceRejected) else "placement"
-            report.rejections[reason] += 1
-            log.warning("rejected %s attempt %d (seed %d): %s", sequence_id, attempt, seed, e)
-            _log_rejection(split_dir, {"sequence_id": sequence_id, "attempt": attempt, "seed": seed,
-                                       "reason": reason, "detail": str(e), "pid": os.getpid()})
+        except SequenceRejected as e:
+            _reject(cfg, split_dir, report, sequence_id, attempt, e.reason, str(e))
+            attempt += 1
             continue
         for k, v in timings.items():
             report.timings_s[k] += v
@@ -220,3 +277,12 @@ def _generate_slot(cfg: GenerationConfig, slot: int, split_dir: Path, report: Ge
         f"{sequence_id}: {cfg.max_attempts} draws in a row were rejected ({dict(report.rejections)}); "
         f"see {split_dir / REJECTIONS_FILE}; loosen the scenario or raise max_attempts"
     )
+
+
+def _reject(cfg: GenerationConfig, split_dir: Path, report: GenerationReport, sequence_id: str, attempt: int,
+            reason: str, detail: str) -> None:
+    seed = slot_seed(cfg.seed, cfg.split, int(sequence_id.rsplit("-", 1)[1]), attempt)
+    report.rejections[reason] += 1
+    log.warning("rejected %s attempt %d (seed %d): %s", sequence_id, attempt, seed, detail)
+    _log_rejection(split_dir, {"sequence_id": sequence_id, "attempt": attempt, "seed": seed,
+                               "reason": reason, "detail": detail, "pid": os.getpid()})

@@ -475,7 +475,8 @@ def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: Sc
         frames=frames,
         collisions=[CollisionEvent(**_event_fields(e.to_dict())) for e in result.collisions],
         simulation=sim_info,
-        extra={k: v for k, v in (("counterfactual_of", scenario.counterfactual_of), ("change", scenario.change)) if v},
+        extra={k: v for k, v in (("counterfactual_of", scenario.counterfactual_of), ("change", scenario.change),
+                                 ("scenario", scenario.kind)) if v},
     )
 
 

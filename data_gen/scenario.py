@@ -14,6 +14,7 @@ one thing: gravity, one object's position, or one object's size.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,7 +25,7 @@ from data_gen.assets.asset_uri import is_asset_reference
 from data_gen.assets.captured import check_scene_reference
 from data_gen.assets.imported import check_object_reference
 from data_gen.assets.materials import sample_material
-from data_gen.assets.registry import get_object, get_scene_layout, list_objects, list_scene_layouts
+from data_gen.assets.registry import get_object, get_scene_layout, list_objects, list_scene_layouts, object_pool
 from data_gen.cameras import CAMERA_KINDS, CameraPathSpec, path_from_spec, sample_camera_spec
 from data_gen.cameras import MAX_PITCH_DEG, MAX_ROLL_DEG, offset_from_pitch
 from newtphys import schema
@@ -71,6 +72,8 @@ class Scenario:
     image_size: tuple[int, int]
     counterfactual_of: str | None = None
     change: str | None = None
+    kind: str | None = None
+    """Name of the scenario config (a mixture's component: ``<mixture>/<component>``) that drew it."""
 
     @property
     def gravity_magnitude(self) -> float:
@@ -113,6 +116,21 @@ class ScenarioConfig:
     """Rotation about the optical axis, deg (a handheld capture's tilted horizon; 0: level)."""
     fov_x_deg: tuple[float, float]
     max_placement_tries: int
+    object_library: str
+    """Pool of ``objects: null``: ``core`` (the original 34 objects, whose draws earlier data pins) or ``all``
+    (core plus the parametric families of ``data_gen.assets.families``)."""
+    duration_s: tuple[float, float] | None
+    """[min, max] sequence length, s, drawn per sequence (frames = round(duration x fps)); None: the run's
+    ``num_frames`` for every sequence."""
+    duration_mean_s: float | None
+    """Mean of the drawn length, s: a power law truncated to ``duration_s`` with this mean (many short
+    sequences, a tail of long ones; :func:`sample_duration_s`); None: uniform."""
+    pile_radius_m: float | None
+    """A pile: every object after the first is placed within this horizontal distance (m) of the first one's
+    spot, in the same region, stacked by its drop height (objects land on each other); None: anywhere."""
+    mixture: Mapping[str, Mapping[str, Any]] | None
+    """Component name -> {weight: w, <any key above>: value}: each sequence first draws a component by weight,
+    then is drawn from this config with the component's keys changed (None: not a mixture)."""
 
     @staticmethod
     def from_mapping(cfg: Mapping[str, Any]) -> ScenarioConfig:
@@ -129,6 +147,8 @@ class ScenarioConfig:
         kwargs = {k: (tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in cfg.items()}
         if "motions" in kwargs:
             kwargs["motions"] = dict(cfg["motions"])
+        if kwargs.get("mixture") is not None:
+            kwargs["mixture"] = {str(k): dict(v) for k, v in dict(cfg["mixture"]).items()}
         out = ScenarioConfig(**kwargs)
         out.check()
         return out
@@ -144,6 +164,14 @@ class ScenarioConfig:
         return out
 
     def check(self) -> None:
+        if self.object_library not in OBJECT_LIBRARIES:
+            raise ScenarioError(f"scenario '{self.name}': object_library must be one of {OBJECT_LIBRARIES}, "
+                                f"got {self.object_library!r}")
+        _check_duration(self)
+        if self.pile_radius_m is not None and not (np.isfinite(self.pile_radius_m) and self.pile_radius_m >= 0):
+            raise ScenarioError(f"scenario '{self.name}': pile_radius_m must be >= 0 m or null, got {self.pile_radius_m}")
+        if self.mixture is not None:
+            self.components()  # builds and checks every component
         _check_names(self.name, "scene", self.scenes, check_scene_reference, list_scene_layouts(),
                      "'ply:<captured scene .ply>?<options>'")
         _check_names(self.name, "object", self.objects or (), check_object_reference, list_objects(),
@@ -173,6 +201,103 @@ class ScenarioConfig:
                                     f"(deg), got {tuple(bounds)}")
 
 
+    def components(self) -> list[tuple[str, float, ScenarioConfig]]:
+        """(name, probability, config) of each mixture component, in file order (empty: not a mixture)."""
+        if self.mixture is None:
+            return []
+        if not isinstance(self.mixture, Mapping) or not self.mixture:
+            raise ScenarioError(f"scenario '{self.name}': mixture must map component names to settings, "
+                                f"got {self.mixture!r}")
+        out = []
+        for comp, settings in self.mixture.items():
+            settings = dict(settings)
+            weight = settings.pop("weight", None)
+            if weight is None or not np.isfinite(float(weight)) or float(weight) < 0:
+                raise ScenarioError(f"scenario '{self.name}': mixture component '{comp}' needs a weight >= 0, "
+                                    f"got {weight!r}")
+            if "mixture" in settings:
+                raise ScenarioError(f"scenario '{self.name}': mixture component '{comp}' cannot hold a mixture")
+            known = {f.name for f in dataclasses.fields(self)} - {"name"}
+            unknown = sorted(set(settings) - known)
+            if unknown:
+                raise ScenarioError(f"scenario '{self.name}': mixture component '{comp}': unknown keys {unknown}; "
+                                    f"known keys: {sorted(known)}")
+            if "motions" in settings:  # a component's motions replace the mixture's (they do not merge)
+                settings["motions"] = dict(settings["motions"])
+            try:
+                cfg = self.replace(name=f"{self.name}/{comp}", mixture=None, **settings)
+            except ScenarioError as e:
+                raise ScenarioError(f"mixture component '{comp}': {e}") from None
+            out.append((str(comp), float(weight), cfg))
+        total = sum(w for _, w, _ in out)
+        if total <= 0:
+            raise ScenarioError(f"scenario '{self.name}': mixture weights sum to 0")
+        return [(n, w / total, c) for n, w, c in out]
+
+
+OBJECT_LIBRARIES = ("core", "all")
+
+
+def _check_duration(cfg: ScenarioConfig) -> None:
+    if cfg.duration_s is None:
+        if cfg.duration_mean_s is not None:
+            raise ScenarioError(f"scenario '{cfg.name}': duration_mean_s needs duration_s")
+        return
+    if len(cfg.duration_s) != 2:
+        raise ScenarioError(f"scenario '{cfg.name}': duration_s must be [min, max] s, got {cfg.duration_s}")
+    lo, hi = (float(v) for v in cfg.duration_s)
+    if not 0 < lo <= hi <= schema.MAX_SEQUENCE_SECONDS:
+        raise ScenarioError(f"scenario '{cfg.name}': duration_s must satisfy 0 < min <= max <= "
+                            f"{schema.MAX_SEQUENCE_SECONDS:g} s (the contract's longest sequence), got {(lo, hi)}")
+    mean = cfg.duration_mean_s
+    if mean is not None and not (lo < float(mean) < hi or lo == float(mean) == hi):
+        raise ScenarioError(f"scenario '{cfg.name}': duration_mean_s must lie strictly inside duration_s "
+                            f"{(lo, hi)}, got {mean}")
+
+
+@functools.lru_cache(maxsize=64)
+def duration_exponent(lo_s: float, hi_s: float, mean_s: float) -> float:
+    """Exponent a of the power law p(d) ~ d^-(a+1) truncated to [lo_s, hi_s] whose mean is ``mean_s`` (bisection
+    on a in [-50, 50]; the mean falls as a grows; a = 0 is log-uniform, a = -1 uniform)."""
+    def mean(a: float) -> float:
+        if abs(a) < 1e-9:
+            return (hi_s - lo_s) / np.log(hi_s / lo_s)
+        if abs(a - 1.0) < 1e-9:
+            return lo_s * hi_s * np.log(hi_s / lo_s) / (hi_s - lo_s)
+        return a / (a - 1.0) * (lo_s ** (1 - a) - hi_s ** (1 - a)) / (lo_s ** -a - hi_s ** -a)
+    lo_a, hi_a = -50.0, 50.0
+    for _ in range(200):
+        mid = 0.5 * (lo_a + hi_a)
+        if mean(mid) > mean_s:
+            lo_a = mid
+        else:
+            hi_a = mid
+    return 0.5 * (lo_a + hi_a)
+
+
+def sample_duration_s(cfg: ScenarioConfig, rng: np.random.Generator) -> float:
+    """One sequence length, s, in ``cfg.duration_s``: uniform when ``duration_mean_s`` is None, else a
+    truncated power law p(d) ~ d^-(a+1) whose mean is ``duration_mean_s`` (many short sequences, a tail of
+    long ones: for [2, 10] s and a 2.65 s mean, a = 4.0, median 2.38 s, 2.4% longer than 5 s)."""
+    lo, hi = (float(v) for v in cfg.duration_s)
+    u = float(rng.uniform())
+    if cfg.duration_mean_s is None or hi <= lo:
+        return lo + (hi - lo) * u
+    a = duration_exponent(lo, hi, float(cfg.duration_mean_s))
+    if abs(a) < 1e-9:
+        return lo * (hi / lo) ** u
+    return (lo ** -a - u * (lo ** -a - hi ** -a)) ** (-1.0 / a)  # inverse CDF
+
+
+def sample_num_frames(cfg: ScenarioConfig, rng: np.random.Generator, fps: float, default: int) -> int:
+    """Frames of one sequence: ``default`` when ``cfg.duration_s`` is None, else a drawn duration x fps
+    (at least 2 frames, at most the contract's 10 s)."""
+    if cfg.duration_s is None:
+        return default
+    frames = round(sample_duration_s(cfg, rng) * fps)
+    return int(min(max(frames, 2), int(schema.MAX_SEQUENCE_SECONDS * fps)))
+
+
 def _check_names(scenario: str, kind: str, names, check_reference, catalogue: list[str], reference_hint: str) -> None:
     """Each name is a catalogue entry or a user reference that passes its cheap checks (file, options)."""
     for name in names:
@@ -190,6 +315,18 @@ def _check_names(scenario: str, kind: str, names, check_reference, catalogue: li
 def _message(error: Exception) -> str:
     """An exception's text (a KeyError's without the quotes its str adds)."""
     return str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
+
+
+SELF_WEIGHT_STRAIN_LIMIT = 0.8
+"""Largest self-weight strain rho |g| L / E of a drawn object (L: its largest extent). The simulator refuses
+objects above 1.0 (they would collapse under their own weight; ``data_gen/sim/world.py``), which ended the
+whole job; 0.8 keeps a margin for the extent of its interior points."""
+
+
+def min_young_modulus_pa(density_kg_m3: float, gravity_m_s2: float, size_m: float) -> float:
+    """The softest modulus (Pa) an object of this density (kg/m^3) and largest extent (m) may have under
+    gravity of this magnitude (m/s^2): drawn moduli below it are raised to it."""
+    return density_kg_m3 * gravity_m_s2 * size_m / SELF_WEIGHT_STRAIN_LIMIT
 
 
 def gravity_for_split(split: str, mode: str, rng: np.random.Generator) -> tuple[float, float, float]:
@@ -230,17 +367,27 @@ def sample_scenario(
     image_size: tuple[int, int],
 ) -> Scenario:
     """Draw one scenario. Placement avoids initial overlap with bounding spheres; raises ScenarioError
-    when ``max_placement_tries`` cannot place every object (an impossible placement)."""
+    when ``max_placement_tries`` cannot place every object (an impossible placement).
+
+    A mixture draws its component from its own stream, then the component's scenario from the same seed
+    (so a component draws what it would alone); ``duration_s`` replaces ``num_frames`` by a drawn length.
+    Both use streams of their own: configs without them draw exactly what they drew before."""
+    ss = np.random.SeedSequence(seed)
+    rng_scene, rng_obj, rng_cam, rng_g, rng_mix, rng_len = (np.random.default_rng(s) for s in ss.spawn(6))
+    if cfg.mixture is not None:
+        comps = cfg.components()
+        k = int(rng_mix.choice(len(comps), p=np.array([w for _, w, _ in comps])))
+        return sample_scenario(comps[k][2], sequence_id, seed, split, gravity_mode, num_frames, fps, image_size)
+    num_frames = sample_num_frames(cfg, rng_len, fps, num_frames)
     if not 1 <= num_frames <= schema.MAX_SEQUENCE_SECONDS * fps:
         raise ScenarioError(
             f"num_frames must be in [1, {int(schema.MAX_SEQUENCE_SECONDS * fps)}] "
             f"({schema.MAX_SEQUENCE_SECONDS:g} s at {fps:g} FPS), got {num_frames}"
         )
-    ss = np.random.SeedSequence(seed)
-    rng_scene, rng_obj, rng_cam, rng_g = (np.random.default_rng(s) for s in ss.spawn(4))
+    gravity = gravity_for_split(split, gravity_mode, rng_g)  # its own stream: drawing it first changes nothing
     scene_name = cfg.scenes[int(rng_scene.integers(len(cfg.scenes)))]
     scene = get_scene_layout(scene_name)
-    pool = list(cfg.objects or list_objects())
+    pool = list(cfg.objects or object_pool(cfg.object_library))
     n = int(rng_obj.integers(cfg.num_objects[0], cfg.num_objects[1] + 1))
     motions = list(cfg.motions)
     weights = np.array([cfg.motions[m] for m in motions], np.float64)
@@ -257,14 +404,23 @@ def sample_scenario(
             asset = asset.scaled_to(size)
         material = asset.allowed_materials[int(rng_obj.integers(len(asset.allowed_materials)))]
         E, nu, rho = sample_material(material, rng_obj)
+        E = max(E, min_young_modulus_pa(rho, float(np.linalg.norm(gravity)), size))  # no draw: streams unchanged
         motion = motions[int(rng_obj.choice(len(motions), p=weights / weights.sum()))]
         orientation = _random_quat(rng_obj) if cfg.random_orientation and motion != "push" else _yaw_quat(rng_obj)
         lo, hi = (np.asarray(b, np.float64) for b in asset.shape.bounds())
         centre_local = 0.5 * (lo + hi)
         radius = 0.5 * float(np.linalg.norm(hi - lo))
         for _ in range(cfg.max_placement_tries):
-            region = scene.regions[int(rng_obj.integers(len(scene.regions)))]
-            p = region.sample(1, rng_obj)[0]
+            if cfg.pile_radius_m is not None and placed:  # a pile: over the first object's spot, in its region
+                region = pile_region
+                p = region.sample(1, rng_obj)[0]
+                r, a = cfg.pile_radius_m * np.sqrt(rng_obj.uniform()), rng_obj.uniform(0.0, 2.0 * np.pi)
+                p[:2] = np.clip(placed[0][0][:2] + r * np.array([np.cos(a), np.sin(a)]), region.min_m[:2],
+                                region.max_m[:2])
+            else:
+                region = scene.regions[int(rng_obj.integers(len(scene.regions)))]
+                p = region.sample(1, rng_obj)[0]
+                pile_region = region
             support_z = float(region.min_m[2])
             clearance = 0.005 if motion == "push" else _uniform(rng_obj, cfg.drop_height_m)
             p[2] = support_z + radius + clearance
@@ -332,8 +488,8 @@ def sample_scenario(
         )
     return Scenario(
         sequence_id=sequence_id, seed=seed, split=split, scene=scene_name, objects=tuple(objects),
-        gravity_m_s2=gravity_for_split(split, gravity_mode, rng_g), camera=camera, num_frames=num_frames,
-        fps=float(fps), image_size=(int(image_size[0]), int(image_size[1])),
+        gravity_m_s2=gravity, camera=camera, num_frames=num_frames,
+        fps=float(fps), image_size=(int(image_size[0]), int(image_size[1])), kind=cfg.name,
     )
 
 
@@ -350,9 +506,9 @@ def camera_view_is_clear(
     and sees at least one object's spawn centre: the segment to it, up to the object's bounding radius,
     stays outside walls, boxes and the floor (a camera behind a room's wall saw nothing and its sequence
     was simulated for nothing, then rejected as out of view)."""
-    w2c = path_from_spec(camera, num_frames, fps)
     frames = np.unique(np.linspace(0, num_frames - 1, min(num_frames, _CHECK_FRAMES)).round().astype(int))
-    eyes = np.einsum("fji,fj->fi", w2c[frames, :3, :3], -w2c[frames, :3, 3])  # camera centres -R^T t, (F, 3)
+    w2c = path_from_spec(camera, num_frames, fps, frames)
+    eyes = np.einsum("fji,fj->fi", w2c[:, :3, :3], -w2c[:, :3, 3])  # camera centres -R^T t, (F, 3)
     if float(scene.sdf(eyes).min()) < CAMERA_CLEARANCE_M:
         return False
     centres = np.array([c for c, _ in placed])  # (O, 3)

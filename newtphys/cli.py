@@ -1,4 +1,4 @@
-"""``python -m newtphys {validate,info,view,stats,validate-vqa,view-vqa,subset-vqa,export-vqa}``: tools over shards and question sets that
+"""``python -m newtphys {validate,info,view,stats,merge-index,validate-vqa,view-vqa,subset-vqa,export-vqa}``: tools over shards and question sets that
 need only the core."""
 
 from __future__ import annotations
@@ -157,6 +157,20 @@ def cmd_export_vqa(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_merge_index(args: argparse.Namespace) -> int:
+    from newtphys.shards import merge_index
+
+    try:
+        report = merge_index(args.split_dir, args.expect)
+    except ShardError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    print(f"{Path(args.split_dir) / schema.INDEX_FILENAME}: {report.shards} shard(s), {report.sequences} sequence(s), "
+          f"{report.frames} frame(s)" + (f"; shards missing (jobs unfinished?): {report.missing_shards}"
+                                          if report.missing_shards else ""))
+    return 1 if report.missing_shards else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m newtphys", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -179,6 +193,11 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--out", default=None, help="output directory (default: PATH/stats)")
     st.add_argument("--vqa", default=None, help="also draw the VQA panel of the question sets under this directory")
     st.set_defaults(func=cmd_stats)
+    mi = sub.add_parser("merge-index", help="rebuild a split's index.json from the shards many jobs wrote, "
+                                            "checking they form one split (disjoint sequences, one config)")
+    mi.add_argument("split_dir")
+    mi.add_argument("--expect", type=int, default=None, help="number of sequences the split must hold")
+    mi.set_defaults(func=cmd_merge_index)
     q = sub.add_parser("validate-vqa", help="check question sets against the VQA contract (docs/vqa_contract.md)")
     q.add_argument("paths", nargs="+", help="a question-set directory (<vqa_dir>/<split>) or a VQA root")
     q.set_defaults(func=cmd_validate_vqa)

@@ -439,3 +439,81 @@ class ShardReader:
             world_state=self.world_state(sequence_id),
         )
 
+
+
+# --------------------------------------------------------------------------- #
+# Merging the work of many jobs
+# --------------------------------------------------------------------------- #
+CONFIG_KEYS_PER_JOB = ("job", "num_jobs", "shards", "progress")
+"""Top-level config keys that differ between the jobs of one split and are ignored by :func:`merge_index`."""
+
+
+def _job_independent_config(config_yaml: str) -> str:
+    """A shard's resolved config without the keys that name its job (comparable across jobs)."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(config_yaml) if config_yaml else None
+    except yaml.YAMLError:
+        return config_yaml
+    if not isinstance(data, dict):
+        return config_yaml
+    return yaml.safe_dump({k: v for k, v in data.items() if k not in CONFIG_KEYS_PER_JOB}, sort_keys=True)
+
+
+@dataclass(frozen=True)
+class MergeReport:
+    shards: int
+    sequences: int
+    frames: int
+    missing_shards: list[int]
+    """Shard indices below the highest present one with no final file (a job still running or failed)."""
+
+
+def merge_index(split_dir: str | os.PathLike, expected_sequences: int | None = None) -> MergeReport:
+    """Rebuild ``<split_dir>/index.json`` from the complete shards there (what many jobs wrote, each under
+    its own shard names), atomically and under the index lock, after checking that they form one split:
+
+    * every shard's ``split`` attribute is the directory's split and its schema version this one;
+    * no sequence id appears in two shards (jobs wrote disjoint shards);
+    * every shard was generated from the same config apart from the job keys (``CONFIG_KEYS_PER_JOB``);
+    * with ``expected_sequences``: exactly that many sequences, ids ``<split>-000000`` onwards, none missing.
+
+    Raises :class:`ShardError` naming the shard and the problem; returns counts and missing shard indices."""
+    split_dir = Path(split_dir)
+    shards = list_shards(split_dir)
+    if not shards:
+        raise ShardError(f"{split_dir}: no complete shards ({schema.SHARD_GLOB}) to merge")
+    entries, seen, configs = [], {}, {}
+    for path in shards:
+        with ShardReader(path) as r:
+            if r.split != split_dir.name:
+                raise ShardError(f"{path}: split attribute {r.split!r}, but the directory is split {split_dir.name!r}")
+            configs[path.name] = _job_independent_config(str(r.attrs.get(schema.FILE_ATTR_CONFIG, "")))
+            seqs = [(sid, r.num_frames(sid)) for sid in r.sequences()]
+        for sid, _ in seqs:
+            if sid in seen:
+                raise ShardError(f"{path}: sequence {sid!r} also in {seen[sid]} (jobs overlapped)")
+            seen[sid] = path.name
+        entries.append({"file": path.name, "size_bytes": int(path.stat().st_size), "num_sequences": len(seqs),
+                        "num_frames": int(sum(n for _, n in seqs)),
+                        "sequences": [{"id": sid, "num_frames": int(n)} for sid, n in seqs]})
+    reference = configs[shards[0].name]
+    differing = [name for name, c in configs.items() if c != reference]
+    if differing:
+        raise ShardError(f"{split_dir}: shards {differing} were generated with a config other than {shards[0].name}'s "
+                         f"(apart from {list(CONFIG_KEYS_PER_JOB)}): not one split")
+    if expected_sequences is not None:
+        want = {f"{split_dir.name}-{i:06d}" for i in range(expected_sequences)}
+        missing, extra = sorted(want - set(seen)), sorted(set(seen) - want)
+        if missing or extra:
+            raise ShardError(f"{split_dir}: expected sequences {split_dir.name}-000000..{expected_sequences - 1:06d}; "
+                             f"missing {missing[:5]}{'...' if len(missing) > 5 else ''} ({len(missing)}), "
+                             f"unexpected {extra[:5]} ({len(extra)})")
+    present = sorted(int(p.name[len("shard-"):-len(".h5")]) for p in shards)
+    missing_shards = sorted(set(range(present[-1] + 1)) - set(present))
+    with _locked(split_dir):
+        _write_json_atomic(split_dir / schema.INDEX_FILENAME,
+                           {"schema_version": schema.SCHEMA_VERSION, "split": split_dir.name, "shards": entries})
+    return MergeReport(shards=len(entries), sequences=len(seen), frames=int(sum(e["num_frames"] for e in entries)),
+                       missing_shards=missing_shards)

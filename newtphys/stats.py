@@ -19,6 +19,7 @@ import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from newtphys import schema  # noqa: E402
+from newtphys.paper_stats import PAPER  # noqa: E402
 from newtphys.shards import ShardReader, list_shards  # noqa: E402
 from newtphys.world_state import WorldState  # noqa: E402
 
@@ -41,9 +42,13 @@ class DatasetStats:
     camera_speed_m_s: list[float] = field(default_factory=list)
     visible_fraction: list[float] = field(default_factory=list)
     gravity_m_s2: dict[str, list[float]] = field(default_factory=dict)
+    collisions_per_object_by_scenario: dict[str, list[float]] = field(default_factory=dict)
+    """Collision events per object of each sequence, by the scenario (mixture component) that drew it."""
 
     def add(self, ws: WorldState) -> None:
         self.splits[ws.split] += 1
+        kind = str(ws.extra.get("scenario") or "unknown")
+        self.collisions_per_object_by_scenario.setdefault(kind, []).append(len(ws.collisions) / max(len(ws.objects), 1))
         self.frames += ws.num_frames
         self.collisions_per_sequence.append(len(ws.collisions))
         self.objects_per_sequence.append(len(ws.objects))
@@ -87,7 +92,36 @@ class DatasetStats:
             "gravity_m_s2": {k: stat(v) for k, v in self.gravity_m_s2.items()},
             "materials": dict(self.materials.most_common()),
             "categories": dict(self.categories.most_common()),
+            "collisions_per_object_by_scenario": {k: stat(v) | {"sequences": len(v)}
+                                                  for k, v in sorted(self.collisions_per_object_by_scenario.items())},
+            "paper_comparison": paper_comparison(self),
         }
+
+
+SOFT_E_PA = 1.0e5
+"""Objects below this Young's modulus count as soft (plush, gel, soft foam), Pa."""
+
+
+def paper_comparison(stats: DatasetStats) -> list[dict[str, str]]:
+    """Rows (quantity, this dataset, the paper) for the numbers the paper reports (``newtphys.paper_stats``)."""
+    p = PAPER
+    n = max(sum(stats.splits.values()), 1)
+    coll = np.asarray(stats.collisions_per_sequence, np.float64)
+    objs = np.asarray(stats.objects_per_sequence, np.float64)
+    e = np.asarray(stats.young_modulus_pa, np.float64)
+    rows = [
+        ("sequences", f"{n}", f"{p.sequences}"),
+        ("frames per sequence (mean)", f"{stats.frames / n:.1f}", f"{p.frames / p.sequences:.1f}"),
+        ("collision events per sequence (mean, median)",
+         f"{coll.mean():.1f}, {np.median(coll):.0f}" if coll.size else "-", f"~{p.collisions_per_sequence:g}"),
+        ("objects per sequence (min-max, mean)",
+         f"{objs.min():.0f}-{objs.max():.0f}, {objs.mean():.1f}" if objs.size else "-",
+         f"1-{p.max_objects_per_scene}"),
+        ("Young's modulus Pa (min, median, max)",
+         f"{e.min():.1e}, {np.median(e):.1e}, {e.max():.1e}" if e.size else "-", f"from ~{p.min_young_modulus_pa:.0e}"),
+        ("soft objects (E < 1e5 Pa)", f"{(e < SOFT_E_PA).mean():.0%}" if e.size else "-", "highly deformable objects"),
+    ]
+    return [{"quantity": q, "dataset": d, "paper": pp} for q, d, pp in rows]
 
 
 def gather(root: str | os.PathLike, progress: bool = True) -> DatasetStats:
@@ -113,7 +147,9 @@ def _markdown(summary: dict[str, object]) -> str:
         lines.append(f"| gravity ({split}) m/s² | " + " | ".join(f"{val[k]:.4g}" for k in ("min", "median", "mean", "max")) + " |")
     head = [f"sequences: {summary['sequences']}, frames: {summary['frames']}, objects: {summary['objects']}", ""]
     tail = ["", f"materials: {summary['materials']}", "", f"categories: {summary['categories']}"]
-    return "\n".join(head + lines + tail) + "\n"
+    paper = ["", "beside the paper's dataset:", "", "| quantity | this dataset | paper |", "|---|---|---|"]
+    paper += [f"| {r['quantity']} | {r['dataset']} | {r['paper']} |" for r in summary.get("paper_comparison", [])]
+    return "\n".join(head + lines + tail + paper) + "\n"
 
 
 def plot(stats: DatasetStats, out_png: Path) -> Path:
@@ -136,6 +172,8 @@ def plot(stats: DatasetStats, out_png: Path) -> Path:
         a.set_xlabel(xlabel)
 
     hist(ax[0], stats.collisions_per_sequence, "collision events per sequence", "events")
+    ax[0].axvline(PAPER.collisions_per_sequence, color="#cc3311", ls="--", label="paper (~15)")
+    ax[0].legend(fontsize=8)
     hist(ax[1], stats.young_modulus_pa, "Young's modulus", "E (Pa)", log=True)
     hist(ax[2], stats.poisson_ratio, "Poisson ratio", "ν")
     hist(ax[3], stats.density_kg_m3, "density", "ρ (kg/m³)", log=True)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from data_gen.assets.families import FAMILY_SPECS
 from data_gen.assets.materials import RGB, ProceduralTexture
 from data_gen.assets.object_asset import ObjectAsset
 from data_gen.assets.shapes import (
@@ -618,9 +619,17 @@ _SPECS: dict[str, _Spec] = {
 }
 
 
+CORE_OBJECTS: tuple[str, ...] = tuple(sorted(_SPECS))
+"""The 34 hand-built objects (``object_library: core``); the parametric families add the rest."""
+_ALL_SPECS: dict[str, _Spec] = {**_SPECS, **{name: _Spec(*row) for name, row in FAMILY_SPECS.items()}}
+if len(_ALL_SPECS) != len(_SPECS) + len(FAMILY_SPECS):
+    raise RuntimeError(f"family names repeat core names: {sorted(set(_SPECS) & set(FAMILY_SPECS))}")
+LIBRARIES = ("core", "all")
+
+
 @functools.cache
 def _build(name: str) -> ObjectAsset:
-    spec = _SPECS[name]
+    spec = _ALL_SPECS[name]
     alternatives = (
         spec.alternatives
         if spec.default_material in spec.alternatives
@@ -638,13 +647,15 @@ def _build(name: str) -> ObjectAsset:
     )
 
 
-def list_library_objects() -> list[str]:
-    """Names of all library objects, sorted."""
-    return sorted(_SPECS)
+def list_library_objects(library: str = "all") -> list[str]:
+    """Names of the library objects, sorted: ``all`` (core and families) or ``core`` (the hand-built 34)."""
+    if library not in LIBRARIES:
+        raise ValueError(f"object library must be one of {LIBRARIES}, got {library!r}")
+    return sorted(_ALL_SPECS) if library == "all" else list(CORE_OBJECTS)
 
 
 def library_object(name: str) -> ObjectAsset:
     """The library object ``name`` at its canonical size; an unknown name lists the valid ones."""
-    if name not in _SPECS:
+    if name not in _ALL_SPECS:
         raise KeyError(f"unknown object {name!r}; valid objects: {', '.join(list_library_objects())}")
     return _build(name)

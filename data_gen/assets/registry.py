@@ -14,10 +14,12 @@ imports this module, so the package's imports form no cycle.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 from data_gen.assets.captured import captured_scene
 from data_gen.assets.imported import imported_object
+from data_gen.assets.layout_variants import list_variant_layouts, variant_layout
 from data_gen.assets.layouts import layout, list_layouts
 from data_gen.assets.library import library_object, list_library_objects
 from data_gen.assets.object_asset import ObjectAsset
@@ -51,13 +53,19 @@ def get_object(name: str, size_m: float | None = None) -> ObjectAsset:
 
 
 def list_objects() -> list[str]:
-    """Names of the library objects, sorted (references to files are not listed)."""
-    return list_library_objects()
+    """Names of all library objects (core and families), sorted (references to files are not listed)."""
+    return list_library_objects("all")
+
+
+def object_pool(library: str) -> list[str]:
+    """What a scenario with ``objects: null`` draws from: ``core`` (the 34 hand-built objects, whose draws
+    earlier data and tests pin) or ``all`` (core plus the parametric families), sorted."""
+    return list_library_objects(library)
 
 
 def is_scene_layout_name(name: str) -> bool:
     """Whether ``name`` names a scene layout: a catalogue name or a reference with a known scheme (not opened)."""
-    return _scheme(name) in LAYOUT_LOADERS or name in list_layouts()
+    return _scheme(name) in LAYOUT_LOADERS or name in list_scene_layouts()
 
 
 def get_scene_layout(name: str) -> SceneLayout:
@@ -65,12 +73,22 @@ def get_scene_layout(name: str) -> SceneLayout:
     valid ones."""
     if not is_scene_layout_name(name):
         raise KeyError(
-            f"unknown scene layout {name!r}; valid layouts: {', '.join(list_layouts())}, "
+            f"unknown scene layout {name!r}; valid layouts: {', '.join(list_scene_layouts())}, "
             f"or a reference <scheme>:<path> with scheme in {sorted(LAYOUT_LOADERS)}"
         )
-    return LAYOUT_LOADERS.get(_scheme(name), layout)(name)
+    if _scheme(name) in LAYOUT_LOADERS:
+        return LAYOUT_LOADERS[_scheme(name)](name)
+    return _catalogue_layout(name)
+
+
+@functools.lru_cache(maxsize=None)
+def _catalogue_layout(name: str) -> SceneLayout:
+    """A catalogue layout, built once per process (layouts are immutable; scenario sampling looks them up
+    once per draw)."""
+    return variant_layout(name) if name in list_variant_layouts() else layout(name)
 
 
 def list_scene_layouts() -> list[str]:
-    """Names of the catalogue layouts, in catalogue order (captured scenes are not listed)."""
-    return list_layouts()
+    """Names of the catalogue layouts: the first catalogue (``layouts``), then ``layout_variants``, each in
+    catalogue order (captured scenes are not listed)."""
+    return list_layouts() + list_variant_layouts()

@@ -64,8 +64,12 @@ class SceneBox:
         get_material(self.material)
 
     def shape(self) -> Transformed:
-        """The box as a placed ``shapes.Box`` (world frame)."""
-        return Transformed(Box(self.half_extents_m), self.center_m, self.rotation_wxyz)
+        """The box as a placed ``shapes.Box`` (world frame), built once (the box is immutable)."""
+        shape = self.__dict__.get("_shape_cache")
+        if shape is None:
+            shape = Transformed(Box(self.half_extents_m), self.center_m, self.rotation_wxyz)
+            object.__setattr__(self, "_shape_cache", shape)
+        return shape
 
 
 @dataclass(frozen=True)

@@ -336,16 +336,29 @@ class Transformed(Shape):
                 f"Transformed: translation_m must be 3 finite values in m, got {self.translation_m}"
             )
 
+    @property
+    def _matrix(self) -> F64:
+        """The rotation matrix, computed once per shape (the shape is immutable; read-only array)."""
+        m = self.__dict__.get("_matrix_cache")
+        if m is None:
+            m = quat_to_matrix(self.rotation_wxyz)
+            m.flags.writeable = False
+            object.__setattr__(self, "_matrix_cache", m)
+        return m
+
     def _sdf_part(self, p: F64) -> tuple[F64, I32]:
         # R^T (p - t), row-vector form
-        local = (p - np.asarray(self.translation_m)) @ quat_to_matrix(self.rotation_wxyz)
+        local = (p - np.asarray(self.translation_m)) @ self._matrix
         return self.child._sdf_part(local)
 
     def bounds(self) -> F64:
-        b = self.child.bounds()
-        corners = np.array(list(itertools.product(*zip(b[0], b[1]))))
-        world = corners @ quat_to_matrix(self.rotation_wxyz).T + np.asarray(self.translation_m)
-        return np.stack([world.min(axis=0), world.max(axis=0)])
+        def compute() -> F64:
+            b = self.child.bounds()
+            corners = np.array(list(itertools.product(*zip(b[0], b[1]))))
+            world = corners @ self._matrix.T + np.asarray(self.translation_m)
+            return np.stack([world.min(axis=0), world.max(axis=0)])
+
+        return _memo(self, "_bounds_cache", compute)
 
     def part_ids(self) -> tuple[int, ...]:
         return self.child.part_ids()
@@ -373,6 +386,26 @@ class Scaled(Shape):
         return self.child.part_ids()
 
 
+def _memo(shape: Shape, key: str, compute) -> F64:
+    """``compute()`` once per (immutable) shape, kept in its ``__dict__``; callers get a copy."""
+    value = shape.__dict__.get(key)
+    if value is None:
+        value = compute()
+        object.__setattr__(shape, key, value)
+    return value.copy()
+
+
+def _union_bounds(children: Sequence[Shape]) -> F64:
+    b = np.stack([c.bounds() for c in children])
+    return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+
+
+def _intersection_bounds(children: Sequence[Shape]) -> F64:
+    b = np.stack([c.bounds() for c in children])
+    lo, hi = b[:, 0].max(axis=0), b[:, 1].min(axis=0)
+    return np.stack([lo, np.maximum(hi, lo)])
+
+
 @dataclass(frozen=True)
 class Union(Shape):
     """Union of children: min of their SDFs; the part of the closest child."""
@@ -391,8 +424,7 @@ class Union(Shape):
         return d[k, cols], np.stack(parts)[k, cols]
 
     def bounds(self) -> F64:
-        b = np.stack([c.bounds() for c in self.children])
-        return np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+        return _memo(self, "_bounds_cache", lambda: _union_bounds(self.children))
 
     def part_ids(self) -> tuple[int, ...]:
         return tuple(sorted({i for c in self.children for i in c.part_ids()}))
@@ -416,9 +448,7 @@ class Intersection(Shape):
         return d[k, cols], np.stack(parts)[k, cols]
 
     def bounds(self) -> F64:
-        b = np.stack([c.bounds() for c in self.children])
-        lo, hi = b[:, 0].max(axis=0), b[:, 1].min(axis=0)
-        return np.stack([lo, np.maximum(hi, lo)])
+        return _memo(self, "_bounds_cache", lambda: _intersection_bounds(self.children))
 
     def part_ids(self) -> tuple[int, ...]:
         return tuple(sorted({i for c in self.children for i in c.part_ids()}))

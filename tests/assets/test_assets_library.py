@@ -5,11 +5,15 @@ import pytest
 import trimesh
 
 from data_gen.assets.object_asset import CATEGORIES, semantic_class_table, semantic_id
-from data_gen.assets.registry import get_object, list_objects
+from data_gen.assets.registry import get_object, list_objects, object_pool
 from data_gen.assets.materials import list_materials
 from data_gen.assets.ply_io import points_inside_mesh
 
 NAMES = list_objects()
+CORE = object_pool("core")
+MESHED = [n if n in CORE else pytest.param(n, marks=pytest.mark.slow) for n in NAMES]
+"""The core objects in the default run; the ~85 family objects (same check, ~0.5 s each) in the slow run
+(tests/assets/test_assets_families.py builds a sample of them by default)."""
 
 
 def test_library_size_and_metadata():
@@ -27,7 +31,7 @@ def test_library_size_and_metadata():
     assert len({get_object(n).category for n in NAMES}) >= 12
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", MESHED)
 def test_mesh_watertight_and_sdf_sign_agrees(name):
     a = get_object(name)
     mesh = a.to_mesh()  # the visible surface: for hollow objects the outer wall only

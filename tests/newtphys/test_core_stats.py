@@ -42,3 +42,24 @@ def test_stats_match_world_states(synthetic_dataset: Path, tmp_path: Path) -> No
     assert Image.open(out / "stats.png").size[0] > 1000
     assert "| mass_kg |" in (out / "summary.md").read_text()
     assert main(["stats", str(tmp_path / "empty_dir_that_is_missing")]) == 1
+
+
+def test_stats_print_collisions_objects_and_e_beside_the_paper(synthetic_dataset: Path, tmp_path: Path) -> None:
+    from newtphys.paper_stats import PAPER
+    from newtphys.stats import paper_comparison, write_stats
+
+    stats = gather(synthetic_dataset, progress=False)
+    rows = {r["quantity"]: r for r in paper_comparison(stats)}
+    coll = np.array(stats.collisions_per_sequence, np.float64)
+    e = np.array(stats.young_modulus_pa)
+    assert rows["sequences"] == {"quantity": "sequences", "dataset": "16", "paper": "11000"}
+    assert rows["collision events per sequence (mean, median)"]["dataset"] == f"{coll.mean():.1f}, {np.median(coll):.0f}"
+    assert rows["collision events per sequence (mean, median)"]["paper"] == "~15"
+    assert rows["objects per sequence (min-max, mean)"]["dataset"] == "2-2, 2.0"  # the fixture: 2 boxes each
+    assert rows["objects per sequence (min-max, mean)"]["paper"] == "1-10"
+    assert rows["Young's modulus Pa (min, median, max)"]["dataset"].startswith(f"{e.min():.1e}")
+    assert rows["frames per sequence (mean)"]["paper"] == f"{PAPER.frames / PAPER.sequences:.1f}" == "66.4"
+    summary = write_stats(synthetic_dataset, tmp_path / "s", progress=False)
+    md = (tmp_path / "s" / "summary.md").read_text()
+    assert "| collision events per sequence (mean, median) |" in md and "| ~15 |" in md
+    assert summary["paper_comparison"][0]["paper"] == "11000"
