@@ -190,10 +190,10 @@ MUTANTS: tuple[Mutant, ...] = (
                       "each, and the Simulator always passes mass points), so both means agree to round-off"),
     # --- solver (batched energy terms and minimiser) -----------------------------------------------
     Mutant("pair_cross_block_sign_flipped", "data_gen/sim/energy/pair_contact.py",
-           "cross = -point_hessian(bip, hp, bjp)",
-           "cross = point_hessian(bip, hp, bjp)"),
+           "cross = -point_hessian(bi_pairs, hp_pairs, bj_pairs)",
+           "cross = point_hessian(bi_pairs, hp_pairs, bj_pairs)"),
     Mutant("pair_gradient_not_on_partner", "data_gen/sim/energy/pair_contact.py",
-           "grad_pts.index_add_(0, oj[solved_j], -(ga[solved_j][:, :, None] * bj[solved_j][:, None, :]))",
+           "grad_pts.index_add_(0, pairs.obj_j[solved_j], -(g[solved_j][:, :, None] * groups.b_j[solved_j][:, None, :]))",
            "pass"),
     Mutant("friction_pushes_along_slip", "data_gen/sim/energy/point_terms.py",
            "grad = ratio[:, None] * u",
