@@ -61,7 +61,7 @@ from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_fr
 from data_gen.sim.solver import SimulationError
 from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
 from data_gen.sim.threads import torch_threads
-from data_gen.sim.world import SimObjectSpec, Simulator
+from data_gen.sim.world import SimObjectSpec, Simulator, UnsimulatableDraw
 from newtphys import geometry, schema
 from newtphys.consistency import optical_flow_from_scene_flow
 from newtphys.rotations import matrix_to_quat, quat_to_matrix
@@ -221,6 +221,8 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
         result = sim.run(scenario.num_frames, scenario.fps)
     except SimulationError as e:
         raise SequenceRejected("simulation_failed", str(e)) from None
+    except UnsimulatableDraw as e:  # e.g. an object too soft for its own weight: reject the draw, not the run
+        raise SequenceRejected("unsimulatable", str(e)) from None
     check_simulation(result, [o.material for o in objects])
     return result
 

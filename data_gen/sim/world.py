@@ -34,9 +34,15 @@ from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.threads import torch_threads
 from newtphys.rotations import quat_to_matrix
 
-__all__ = ["SimObjectSpec", "Simulator", "SimulationError"]
+__all__ = ["SimObjectSpec", "Simulator", "SimulationError", "UnsimulatableDraw"]
 
 MAX_SELF_WEIGHT_STRAIN = 1.0  # rho |g| L / E above this: the object would collapse; refused
+
+
+class UnsimulatableDraw(ValueError):
+    """Well-formed objects that cannot be simulated as drawn: an object too soft to carry its own weight,
+    one spawned inside the static scene, or two spawned overlapping. Generation rejects such a draw (with
+    this message as the reason) instead of ending the run; malformed inputs stay plain ValueErrors."""
 
 
 @dataclass(frozen=True)
@@ -198,7 +204,7 @@ class Simulator:
             x = p.contact.positions(p.q0)
             sdf, _ = self.scene.query(x.numpy())
             if sdf.min() < 0:
-                raise ValueError(
+                raise UnsimulatableDraw(
                     f"object {p.spec.name!r}: position_m={tuple(p.spec.position_m)} places it "
                     f"inside the static scene (deepest point {-sdf.min():.4g} m below the surface)"
                 )
@@ -218,7 +224,7 @@ class Simulator:
             if gap.min() < 0:
                 a, c = owner[pairs[np.argmin(gap)]]
                 pa, pc = self.prepared[a].spec, self.prepared[c].spec
-                raise ValueError(
+                raise UnsimulatableDraw(
                     f"objects {pa.name!r} and {pc.name!r} are spawned overlapping "
                     f"(position_m {tuple(pa.position_m)} and {tuple(pc.position_m)})"
                 )
@@ -348,7 +354,7 @@ def _validate_spec(spec: SimObjectSpec, gravity: np.ndarray) -> None:
     size_m = float((pts.max(0) - pts.min(0)).max())
     strain = rho * float(np.linalg.norm(gravity)) * size_m / e
     if strain > MAX_SELF_WEIGHT_STRAIN:
-        raise ValueError(
+        raise UnsimulatableDraw(
             f"object {name!r}: young_modulus_pa={e!r} is too soft for |g|={np.linalg.norm(gravity):.3g} "
             f"m/s^2 (self-weight strain rho g L / E = {strain:.3g} > {MAX_SELF_WEIGHT_STRAIN}); "
             f"allowed: E >= {rho * np.linalg.norm(gravity) * size_m / MAX_SELF_WEIGHT_STRAIN:.3g} Pa"

@@ -67,3 +67,30 @@ def test_hollow_objects_get_contact_spheres_inside_their_envelope():
     assert np.median(radii) == pytest.approx(0.5 * np.sqrt(mesh.area / 128), rel=1e-9)
     assert (centres[:, 2] - radii).min() == pytest.approx(mesh.bounds[0, 2], abs=1e-4)  # rests on its true bottom
     assert asset.shape.sdf(centres).max() > 0.005  # most of each sphere lies in the cavity, as intended
+
+
+def test_a_draw_the_simulator_cannot_run_is_rejected_not_fatal(monkeypatch):
+    """An object too soft for its own weight (rho g L / E = 1000 * 9.81 * 0.1 / 50 ~ 20 > 1; E must be >= ~980 Pa) is refused by the
+    simulator; generation turns that into a rejected draw with the simulator's reason."""
+    from data_gen import pipeline
+    from data_gen.sim.world import UnsimulatableDraw
+
+    half = (0.05, 0.05, 0.05)
+    pts = np.random.default_rng(0).uniform(-1, 1, (200, 3)) * half
+    soft = SimObjectSpec("jelly", pts, 1e-3, Material(50.0, 0.3, 1000.0), position_m=(0, 0, 0.06))
+    with pytest.raises(UnsimulatableDraw, match=r"jelly.*too soft.*allowed: E >= 9[78][0-9] Pa"):
+        Simulator(StaticScene(), [soft], (0, 0, -9.81), "draft", seed=0)
+    assert issubclass(UnsimulatableDraw, ValueError)  # callers catching ValueError keep working
+
+    def build_simulator(*args, **kwargs):
+        return Simulator(StaticScene(), [soft], (0, 0, -9.81), "draft", seed=0)
+
+    monkeypatch.setattr(pipeline, "Simulator", build_simulator)
+    monkeypatch.setattr(pipeline, "sim_static_scene", lambda layout: StaticScene())
+
+    class _Scenario:
+        objects, gravity_m_s2, seed, num_frames, fps = [], (0.0, 0.0, -9.81), 0, 2, 25.0
+
+    with pytest.raises(SequenceRejected) as err:
+        pipeline.simulate(_Scenario(), [], None, None)
+    assert err.value.reason == "unsimulatable" and "too soft" in err.value.detail
