@@ -11,6 +11,7 @@ A converged or stalled island stops moving while the others go on.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -29,19 +30,21 @@ class Evaluation:
     hess: torch.Tensor | None = None
 
 
-class Objective:
+class Objective(ABC):
     """What :func:`minimise` needs from a step: evaluations and sizes, all in island vectors (n_isl, N)."""
 
+    @abstractmethod
     def evaluate(self, q: torch.Tensor, derivatives: bool, strict_islands: torch.Tensor | None = None) -> Evaluation:
-        raise NotImplementedError
+        """Objective per island at ``q``; with ``derivatives`` also gradient and Newton matrix (``strict_islands``:
+        islands whose elastic blocks are all projected to positive semi-definite)."""
 
+    @abstractmethod
     def mass_norm(self, dq: torch.Tensor) -> torch.Tensor:
         """|dq|_M per island."""
-        raise NotImplementedError
 
+    @abstractmethod
     def point_motion(self, dq: torch.Tensor) -> torch.Tensor:
         """Largest contact-sphere displacement (m) per island under the state change dq."""
-        raise NotImplementedError
 
 
 @dataclass
