@@ -39,6 +39,7 @@ score that the probe closes. The best baseline is chosen per metric and split
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -53,21 +54,22 @@ Batches = Iterable[tuple[Tensor, Tensor]]
 """(target, mask) pairs: target in the task's layout, mask (B, H, W) object pixels of the last frame."""
 
 
-class TrivialBaselines:
+class TrivialBaselines(ABC):
     """Predictors of one task that ignore the image: ``update`` fits them on train targets."""
 
     names: tuple[str, ...] = ()
 
+    @abstractmethod
     def update(self, target: Tensor, mask: Tensor) -> None:
-        raise NotImplementedError
+        """Accumulate one batch of train targets (object pixels of ``mask``)."""
 
+    @abstractmethod
     def fitted(self) -> dict[str, Any]:
         """The fitted constants, JSON-ready."""
-        raise NotImplementedError
 
+    @abstractmethod
     def predictions(self, target: Tensor, mask: Tensor, generator: torch.Generator) -> dict[str, Tensor]:
         """Baseline name -> prediction shaped like ``target`` (what the task's metrics receive)."""
-        raise NotImplementedError
 
     def _need_pixels(self, count: Tensor) -> None:
         if count <= 0:

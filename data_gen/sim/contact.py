@@ -11,7 +11,9 @@
 
 The stiffness ``k`` (N/m) is chosen by the caller as ``factor * mass / dt^2`` so that the penetration
 under load does not depend on the material stiffness (a stiff object cannot push through the floor).
-All functions are batched over points/pairs (torch float64); energies in J, forces in N.
+All functions are batched over points/pairs (torch float64); energies in J, forces in N. The per-point
+formulas live in :mod:`data_gen.sim.energy.point_terms` (shared with the solver's energy terms); these
+wrappers return totals.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from data_gen.sim.energy import point_terms
 from data_gen.sim.static_scene import StaticScene
 
 
@@ -51,13 +54,8 @@ def penalty_from_sdf(
 ) -> tuple[PointContact, torch.Tensor, torch.Tensor]:
     """:func:`static_contact` from already queried signed distances (n,) and normals (n,3)."""
     depth = radius_m - sdf_m
-    active = (depth > 0).to(torch.float64)
-    d = depth * active
-    k = stiffness_n_m * active
-    energy = float((0.5 * k * d * d).sum())
-    grad = -(k * d)[:, None] * n_t
-    hess = k[:, None, None] * n_t[:, :, None] * n_t[:, None, :]
-    return PointContact(energy, grad, hess), depth, n_t
+    energy, grad, hess = point_terms.penalty(depth, n_t, stiffness_n_m, True)
+    return PointContact(float(energy.sum()), grad, hess), depth, n_t
 
 
 def friction_terms(
@@ -68,16 +66,10 @@ def friction_terms(
     smoothing_m: float,
 ) -> PointContact:
     """Lagged smoothed Coulomb friction on a slip (n,3) with frozen normal forces (n,) and normals (n,3)."""
-    proj = torch.eye(3, dtype=torch.float64) - tangent_normals[:, :, None] * tangent_normals[:, None, :]
-    u = torch.einsum("irs,is->ir", proj, slip_m)
-    s = u.norm(dim=1)
-    scale = friction_coefficient * normal_force_n
-    inside = s < smoothing_m
-    f = torch.where(inside, s * s / (2.0 * smoothing_m), s - 0.5 * smoothing_m)
-    denom = torch.clamp(s, min=smoothing_m)
-    grad = (scale / denom)[:, None] * u
-    hess = (scale / denom)[:, None, None] * proj
-    return PointContact(float((scale * f).sum()), grad, hess)
+    energy, grad, hess = point_terms.friction(
+        slip_m, normal_force_n, tangent_normals, friction_coefficient, smoothing_m, True
+    )
+    return PointContact(float(energy.sum()), grad, hess)
 
 
 @wp.kernel
@@ -185,10 +177,5 @@ def pair_contact(
     dist = delta.norm(dim=1).clamp(min=1e-12)
     n = delta / dist[:, None]
     depth = radius_sum_m - dist
-    active = (depth > 0).to(torch.float64)
-    d = depth * active
-    k = stiffness_n_m * active
-    energy = float((0.5 * k * d * d).sum())
-    grad_i = -(k * d)[:, None] * n
-    hess = k[:, None, None] * n[:, :, None] * n[:, None, :]
-    return PairContact(energy, grad_i, hess, depth, n)
+    energy, grad_i, hess = point_terms.penalty(depth, n, stiffness_n_m, True)
+    return PairContact(float(energy.sum()), grad_i, hess, depth, n)

@@ -72,7 +72,7 @@ def resolve_snapshot(spec: VLMSpec, revision: str | None, weights_path: str | os
         if (snap / "config.json").is_file():
             return snap, snap.name
     except LocalEntryNotFoundError:
-        pass
+        log.debug("%s (revision %s) is not in the cache %s", spec.hf_id, revision or "main", cache)
     if allow_download and not hf_offline():
         log.info("downloading %s (revision %s) into %s", spec.hf_id, revision or "main", cache)
         try:
