@@ -79,6 +79,64 @@ def _box_sdf(p_world: wp.vec3d, center: wp.vec3d, rot: wp.mat33d, half: wp.vec3d
     return outside + inside, rot * n_local
 
 
+@wp.func
+def boxes_distance(
+    p: wp.vec3d,
+    has_ground: int,
+    box_centers: wp.array(dtype=wp.vec3d),
+    box_rotations: wp.array(dtype=wp.mat33d),
+    box_half_extents: wp.array(dtype=wp.vec3d),
+    far_m: wp.float64,
+):
+    """Signed distance (m) and outward normal of point ``p`` to the ground (if any) and the boxes; the
+    ground wins ties. Shared by the query kernel and the solver's contact kernels."""
+    best = far_m
+    best_n = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
+    if has_ground != 0:
+        best = p[2]
+    for b in range(box_centers.shape[0]):
+        d, n = _box_sdf(p, box_centers[b], box_rotations[b], box_half_extents[b])
+        if d < best:
+            best = d
+            best_n = n
+    return best, best_n
+
+
+@wp.func
+def points_distance(
+    grid: wp.uint64,
+    p: wp.vec3d,
+    static_points: wp.array(dtype=wp.vec3d),
+    radius_m: wp.float64,
+    search_m: wp.float64,
+    best_in: wp.float64,
+    best_n_in: wp.vec3d,
+):
+    """Lower a distance ``best_in`` (m) and normal to that of the union of balls around the static points
+    (hash-grid search within ``search_m``)."""
+    best = search_m - radius_m
+    best_n = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
+    found = int(0)
+    pf = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    query = wp.hash_grid_query(grid, pf, wp.float32(search_m))
+    index = int(0)
+    while wp.hash_grid_query_next(query, index):
+        delta = p - static_points[index]
+        dist = wp.length(delta)
+        d = dist - radius_m
+        if d < best and dist > wp.float64(0.0):
+            best = d
+            best_n = delta / dist
+            found = 1
+    out = best_in
+    out_n = best_n_in
+    if best < best_in:
+        out = best
+        if found != 0:
+            out_n = best_n
+    return out, out_n
+
+
 @wp.kernel
 def _scene_sdf_kernel(
     points: wp.array(dtype=wp.vec3d),
@@ -91,18 +149,26 @@ def _scene_sdf_kernel(
     normal_out: wp.array(dtype=wp.vec3d),
 ):
     tid = wp.tid()
-    p = points[tid]
-    best = far_m
-    best_n = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
-    if has_ground != 0:
-        best = p[2]
-    for b in range(box_centers.shape[0]):
-        d, n = _box_sdf(p, box_centers[b], box_rotations[b], box_half_extents[b])
-        if d < best:
-            best = d
-            best_n = n
-    sdf_out[tid] = best
-    normal_out[tid] = best_n
+    d, n = boxes_distance(points[tid], has_ground, box_centers, box_rotations, box_half_extents, far_m)
+    sdf_out[tid] = d
+    normal_out[tid] = n
+
+
+@wp.kernel
+def _points_sdf_kernel(
+    grid: wp.uint64,
+    points: wp.array(dtype=wp.vec3d),
+    static_points: wp.array(dtype=wp.vec3d),
+    radius_m: wp.float64,
+    search_m: wp.float64,
+    sdf_out: wp.array(dtype=wp.float64),
+    normal_out: wp.array(dtype=wp.vec3d),
+):
+    """Lower sdf_out/normal_out to the distance of the union of balls around the static points."""
+    tid = wp.tid()
+    d, n = points_distance(grid, points[tid], static_points, radius_m, search_m, sdf_out[tid], normal_out[tid])
+    sdf_out[tid] = d
+    normal_out[tid] = n
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,39 +198,6 @@ class StaticPoints:
                 f"StaticPoints search_m={self.search_m!r} must exceed radius_m={self.radius_m!r} (m)"
             )
         object.__setattr__(self, "points_m", pts)
-
-
-@wp.kernel
-def _points_sdf_kernel(
-    grid: wp.uint64,
-    points: wp.array(dtype=wp.vec3d),
-    static_points: wp.array(dtype=wp.vec3d),
-    radius_m: wp.float64,
-    search_m: wp.float64,
-    sdf_out: wp.array(dtype=wp.float64),
-    normal_out: wp.array(dtype=wp.vec3d),
-):
-    """Lower sdf_out/normal_out to the distance of the union of balls around the static points."""
-    tid = wp.tid()
-    p = points[tid]
-    best = search_m - radius_m
-    best_n = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
-    found = int(0)
-    pf = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
-    query = wp.hash_grid_query(grid, pf, wp.float32(search_m))
-    index = int(0)
-    while wp.hash_grid_query_next(query, index):
-        delta = p - static_points[index]
-        dist = wp.length(delta)
-        d = dist - radius_m
-        if d < best and dist > wp.float64(0.0):
-            best = d
-            best_n = delta / dist
-            found = 1
-    if best < sdf_out[tid]:
-        sdf_out[tid] = best
-        if found != 0:
-            normal_out[tid] = best_n
 
 
 @dataclass(frozen=True)

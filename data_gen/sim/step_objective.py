@@ -16,12 +16,13 @@ from dataclasses import dataclass
 
 import torch
 
+from data_gen.sim.energy.contact_kernels import WarpContact
 from data_gen.sim.energy.elastic import elastic
-from data_gen.sim.energy.terms import ObjectTerms
 from data_gen.sim.energy.gravity import gravity
 from data_gen.sim.energy.inertia import inertia
-from data_gen.sim.energy.pair_contact import PairGroups, PairSet, pair_contact
-from data_gen.sim.energy.scene_contact import contact_start, scene_contact
+from data_gen.sim.energy.pair_contact import PairSet
+from data_gen.sim.energy.scene_contact import contact_start
+from data_gen.sim.energy.terms import ObjectTerms
 from data_gen.sim.model import DofLayout, Model
 from data_gen.sim.newton import Evaluation, Objective
 from data_gen.sim.reduced import DTYPE
@@ -64,12 +65,16 @@ class StepObjective(Objective):
         self.tm_pred = tm_n + h_s * tmdot
         self.smoothing_m = smoothing_m
         self.scene_stiffness_n_m = stiffness_factor * model.mass_kg / self.h2
-        self.pair_groups = PairGroups.build(pairs, model.sphere_b) if pairs.num_pairs else None
         self.sphere_stiffness_n_m = self.scene_stiffness_n_m[:, None] * model.sphere_valid
-        self.sphere_friction = model.friction[:, None].expand_as(self.sphere_stiffness_n_m).contiguous()
         self.start = contact_start(
             scene, model.sphere_positions(tm_n), model.sphere_radius_m, model.sphere_valid, self.scene_stiffness_n_m
         )
+        self.contact = WarpContact(
+            scene.scene, 4 * model.num_handles, model.sphere_rest_m, model.sphere_b, model.sphere_radius_m,
+            self.sphere_stiffness_n_m, model.friction[:, None] * self.start.normal_force_n, self.start.positions_m,
+            self.start.normals, smoothing_m, pairs if pairs.num_pairs else None, layout.flat_index, layout.island_size,
+            layout.num_islands, self.h2,
+        )  # fmt: skip
         rigid = model.num_handles == 1
         self.elastic_groups = [
             (idx, model.cub_c[idx][:, :width], model.cub_volume_m3[idx][:, :width])
@@ -124,34 +129,18 @@ class StepObjective(Objective):
     def evaluate(self, q: torch.Tensor, derivatives: bool, strict_islands: torch.Tensor | None = None) -> Evaluation:
         m = self.model
         tm = self.layout.to_objects(q)
-        x = m.sphere_positions(tm)
         strict = None if strict_islands is None else strict_islands[self.layout.island]
         it = inertia(m.mass_matrix, tm - self.tm_pred, derivatives)
         el = self._elastic(tm, derivatives, strict)
         gr = gravity(m.mass_b_sum, self.gravity, tm, derivatives)
-        sc = scene_contact(
-            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.sphere_stiffness_n_m,
-            self.sphere_friction, self.start, self.smoothing_m, derivatives,
-        )  # fmt: skip
-        pc = (
-            pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, derivatives, self.pair_groups)
-            if self.pairs.num_pairs
-            else None
-        )
-        potential = el.energy + gr.energy + sc.terms.energy + (pc.energy if pc is not None else 0.0)
-        value = self._per_island(it.energy + self.h2 * potential)
+        contact = self.contact.evaluate(tm, derivatives)
+        value = self._per_island(it.energy + self.h2 * (el.energy + gr.energy + contact.energy_j))
         if not derivatives:
             return Evaluation(value)
-        grad = it.grad + self.h2 * (el.grad + gr.grad + sc.terms.grad)
-        hess = it.hess + self.h2 * (el.hess + sc.terms.hess)
-        if pc is not None:
-            grad = grad + self.h2 * pc.grad
-            hess = hess + self.h2 * pc.hess
-        matrix = self.layout.assemble(hess)
-        if pc is not None and pc.cross.shape[0]:
-            matrix = self.layout.assemble(self.h2 * pc.cross, pc.cross_rows, pc.cross_cols, out=matrix)
+        grad = self.layout.to_islands(it.grad + self.h2 * (el.grad + gr.grad)) + contact.grad
+        matrix = self.layout.assemble(it.hess + self.h2 * el.hess).add_(contact.hess)  # contact: h^2 already
         matrix.diagonal(dim1=1, dim2=2).add_(self.padding.to(DTYPE))
-        return Evaluation(value, self.layout.to_islands(grad), matrix)
+        return Evaluation(value, grad, matrix)
 
     def _elastic(self, tm: torch.Tensor, derivatives: bool, strict: torch.Tensor | None) -> ObjectTerms:
         """Elastic terms of all objects, evaluated per group of equal cubature width."""
@@ -175,21 +164,11 @@ class StepObjective(Objective):
 
     def forces(self, tm: torch.Tensor) -> ContactForces:
         """Contact and friction forces of the state ``tm`` (n, 3, K) (the solver's final state)."""
-        m = self.model
-        x = m.sphere_positions(tm)
-        sc = scene_contact(
-            self.scene, x, m.sphere_b, m.sphere_radius_m, m.sphere_valid, self.sphere_stiffness_n_m,
-            self.sphere_friction, self.start, self.smoothing_m, False,
-        )  # fmt: skip
-        if self.pairs.num_pairs:
-            pc = pair_contact(self.pairs, x, m.sphere_b, self.smoothing_m, False)
-            xi, xj = self.pairs.positions(x)
-            delta = xi - xj
-            normals = delta / delta.norm(dim=1, keepdim=True).clamp(min=1e-12)
-            pair_force = pc.force_i_n
-        else:
-            pair_force = normals = torch.zeros(0, 3, dtype=DTYPE)
-        return ContactForces(sc.force_n, sc.normals, x, pair_force, normals)
+        out = self.contact.evaluate(tm)
+        x = self.model.sphere_positions(tm)
+        return ContactForces(
+            out.scene_force_n.clone(), out.scene_normals.clone(), x, out.pair_force_i_n.clone(), out.pair_normals.clone()
+        )
 
 
 __all__ = ["ContactForces", "StepObjective"]

@@ -1,0 +1,393 @@
+"""Scene and pair contact (penalty + lagged friction) of one evaluation as two fused warp kernels.
+
+The formulas are those of :mod:`data_gen.sim.energy.point_terms` (the batched-torch reference used by
+:mod:`.scene_contact` and :mod:`.pair_contact`, which the tests compare these kernels against):
+
+* penalty ``k/2 d^2`` for penetration ``d > 0`` along the normal ``n``, gradient ``-k d n``, Gauss-Newton
+  Hessian ``k n n^T``;
+* friction ``mu lam f(|u_t|)`` on the tangential slip ``u_t`` with the normal force ``lam`` and normal
+  frozen at the start of the (sub)step, ``f(s) = s^2 / (2 eps)`` below ``eps`` and ``s - eps/2`` above,
+  gradient ``mu lam / max(s, eps) u_t``, Hessian ``mu lam / max(s, eps) (I - n n^T)``.
+
+One thread per contact sphere (scene) or per candidate sphere pair (pair). A sphere or pair that neither
+penetrates nor carries a frozen normal force contributes exactly nothing and returns at once: on a pile
+most spheres are far from everything, so the kernels cost little more than the distance query. Active
+threads add their energy per object (J) and, when derivatives are asked, ``scale`` times their gradient
+and Hessian straight into the flat island vectors (n_isl N) and matrices (n_isl N N) of the minimiser
+(:class:`data_gen.sim.model.DofLayout` positions ``flat_index``), including the cross blocks between two
+objects of an island: no per-object blocks are formed and nothing is assembled afterwards. Only the
+object's own ``4 H`` basis columns are visited, so a one-handle object costs 12 x 12 entries per sphere
+whatever the padding.
+
+The sums use atomic adds: on CPU warp runs the threads in order (deterministic); on CUDA the order of the
+float64 additions varies between runs (results agree to round-off).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import warp as wp
+
+from data_gen.sim.static_scene import _FAR_M, StaticScene, boxes_distance, points_distance
+
+wp.init()
+
+_ZERO = wp.constant(wp.float64(0.0))
+
+
+@wp.func
+def _sphere_position(
+    tm: wp.array3d(dtype=wp.float64),
+    rest: wp.array2d(dtype=wp.vec3d),
+    b: wp.array3d(dtype=wp.float64),
+    o: int,
+    s: int,
+    columns: int,
+):
+    """``x = x0 + Tm b`` of sphere s of object o (m)."""
+    x = rest[o, s]
+    for a in range(columns):
+        ba = b[o, s, a]
+        x = x + wp.vec3d(tm[o, 0, a], tm[o, 1, a], tm[o, 2, a]) * ba
+    return x
+
+
+@wp.func
+def _friction(slip: wp.vec3d, normal: wp.vec3d, scale: wp.float64, smoothing_m: wp.float64):
+    """Energy (J), gradient (N) and Hessian (N/m) of lagged friction with ``scale = mu lam`` (N)."""
+    u = slip - wp.dot(slip, normal) * normal
+    s = wp.length(u)
+    energy = _ZERO
+    if s < smoothing_m:
+        energy = scale * s * s / (wp.float64(2.0) * smoothing_m)
+    else:
+        energy = scale * (s - wp.float64(0.5) * smoothing_m)
+    ratio = scale / wp.max(s, smoothing_m)
+    hess = ratio * (wp.identity(n=3, dtype=wp.float64) - wp.outer(normal, normal))
+    return energy, ratio * u, hess
+
+
+@wp.func
+def _add_gradient(
+    grad: wp.array(dtype=wp.float64),
+    flat_index: wp.array2d(dtype=wp.int32),
+    b: wp.array3d(dtype=wp.float64),
+    o: int,
+    s: int,
+    columns: int,
+    padded_columns: int,
+    g: wp.vec3d,
+):
+    """grad[(r, a)] += g[r] b[a] over the object's own columns."""
+    for a in range(columns):
+        ba = b[o, s, a]
+        if ba != _ZERO:
+            for r in range(3):
+                wp.atomic_add(grad, flat_index[o, r * padded_columns + a], g[r] * ba)
+
+
+@wp.func
+def _add_block(
+    hess: wp.array(dtype=wp.float64),
+    flat_index: wp.array2d(dtype=wp.int32),
+    island_size: int,
+    b: wp.array3d(dtype=wp.float64),
+    o: int,
+    s: int,
+    columns: int,
+    p: int,
+    t: int,
+    columns_p: int,
+    padded_columns: int,
+    h: wp.mat33d,
+):
+    """hess[(r, a), (c, e)] += h[r, c] b_os[a] b_pt[e]: the block of object o's rows and object p's columns."""
+    for a in range(columns):
+        ba = b[o, s, a]
+        if ba != _ZERO:
+            for e in range(columns_p):
+                w = ba * b[p, t, e]
+                if w != _ZERO:
+                    for r in range(3):
+                        row = int(flat_index[o, r * padded_columns + a])
+                        base = row * island_size - (row // island_size) * island_size  # island * N * N + local row * N - island * N
+                        for c in range(3):
+                            col = int(flat_index[p, c * padded_columns + e])
+                            wp.atomic_add(hess, base + col, h[r, c] * w)
+
+
+@wp.kernel
+def scene_contact_kernel(
+    tm: wp.array3d(dtype=wp.float64),
+    columns: wp.array(dtype=wp.int32),
+    rest: wp.array2d(dtype=wp.vec3d),
+    b: wp.array3d(dtype=wp.float64),
+    radius: wp.array2d(dtype=wp.float64),
+    stiffness: wp.array2d(dtype=wp.float64),
+    friction_scale: wp.array2d(dtype=wp.float64),
+    start_x: wp.array2d(dtype=wp.vec3d),
+    start_normal: wp.array2d(dtype=wp.vec3d),
+    smoothing_m: wp.float64,
+    has_ground: int,
+    box_centers: wp.array(dtype=wp.vec3d),
+    box_rotations: wp.array(dtype=wp.mat33d),
+    box_half_extents: wp.array(dtype=wp.vec3d),
+    far_m: wp.float64,
+    has_points: int,
+    grid: wp.uint64,
+    static_points: wp.array(dtype=wp.vec3d),
+    point_radius_m: wp.float64,
+    point_search_m: wp.float64,
+    flat_index: wp.array2d(dtype=wp.int32),
+    island_size: int,
+    derivatives: int,
+    scale: wp.float64,
+    energy: wp.array(dtype=wp.float64),
+    grad: wp.array(dtype=wp.float64),
+    hess: wp.array(dtype=wp.float64),
+    force_out: wp.array2d(dtype=wp.vec3d),
+    normal_out: wp.array2d(dtype=wp.vec3d),
+):
+    """Sphere (o, s): ``stiffness`` (n, S) N/m is 0 on padded spheres, ``friction_scale`` = mu lam (N) of
+    the frozen start. ``force_out`` / ``normal_out`` (n, S): contact + friction force on the sphere (N) and
+    the scene normal, written for active spheres (left untouched otherwise)."""
+    o, s = wp.tid()
+    k = stiffness[o, s]
+    if k == _ZERO:
+        return
+    cols = int(columns[o])
+    x = _sphere_position(tm, rest, b, o, s, cols)
+    sdf, n = boxes_distance(x, has_ground, box_centers, box_rotations, box_half_extents, far_m)
+    if has_points != 0:
+        sdf, n = points_distance(grid, x, static_points, point_radius_m, point_search_m, sdf, n)
+    depth = radius[o, s] - sdf
+    mu_lam = friction_scale[o, s]
+    if depth <= _ZERO and mu_lam <= _ZERO:
+        return
+    e = _ZERO
+    g = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    h = wp.mat33d()
+    if depth > _ZERO:
+        e = wp.float64(0.5) * k * depth * depth
+        g = -(k * depth) * n
+        h = k * wp.outer(n, n)
+    if mu_lam > _ZERO:
+        e_f, g_f, h_f = _friction(x - start_x[o, s], start_normal[o, s], mu_lam, smoothing_m)
+        e = e + e_f
+        g = g + g_f
+        h = h + h_f
+    wp.atomic_add(energy, o, e)
+    force_out[o, s] = -g
+    normal_out[o, s] = n
+    if derivatives != 0:
+        kp = flat_index.shape[1] // 3
+        _add_gradient(grad, flat_index, b, o, s, cols, kp, scale * g)
+        _add_block(hess, flat_index, island_size, b, o, s, cols, o, s, cols, kp, scale * h)
+
+
+@wp.kernel
+def pair_contact_kernel(
+    tm: wp.array3d(dtype=wp.float64),
+    columns: wp.array(dtype=wp.int32),
+    rest: wp.array2d(dtype=wp.vec3d),
+    b: wp.array3d(dtype=wp.float64),
+    obj_i: wp.array(dtype=wp.int32),
+    sph_i: wp.array(dtype=wp.int32),
+    obj_j: wp.array(dtype=wp.int32),
+    sph_j: wp.array(dtype=wp.int32),
+    frozen_x_j: wp.array(dtype=wp.vec3d),
+    stiffness: wp.array(dtype=wp.float64),
+    radius_sum: wp.array(dtype=wp.float64),
+    friction_scale: wp.array(dtype=wp.float64),
+    normal0: wp.array(dtype=wp.vec3d),
+    x0_i: wp.array(dtype=wp.vec3d),
+    x0_j: wp.array(dtype=wp.vec3d),
+    smoothing_m: wp.float64,
+    flat_index: wp.array2d(dtype=wp.int32),
+    island_size: int,
+    derivatives: int,
+    scale: wp.float64,
+    energy: wp.array(dtype=wp.float64),
+    grad: wp.array(dtype=wp.float64),
+    hess: wp.array(dtype=wp.float64),
+    force_out: wp.array(dtype=wp.vec3d),
+    normal_out: wp.array(dtype=wp.vec3d),
+):
+    """Pair p: side i on solved object ``obj_i``, side j on solved object ``obj_j`` or frozen (``obj_j < 0``,
+    at ``frozen_x_j``). Energy is counted on side i; ``force_out`` is the force on side i (N) and
+    ``normal_out`` the unit normal j -> i, written for active pairs."""
+    p = wp.tid()
+    oi = int(obj_i[p])
+    si = int(sph_i[p])
+    oj = int(obj_j[p])
+    sj = int(sph_j[p])
+    cols_i = int(columns[oi])
+    xi = _sphere_position(tm, rest, b, oi, si, cols_i)
+    xj = frozen_x_j[p]
+    cols_j = int(0)
+    if oj >= 0:
+        cols_j = int(columns[oj])
+        xj = _sphere_position(tm, rest, b, oj, sj, cols_j)
+    delta = xi - xj
+    dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
+    n = delta / dist
+    depth = radius_sum[p] - dist
+    mu_lam = friction_scale[p]
+    if depth <= _ZERO and mu_lam <= _ZERO:
+        return
+    k = stiffness[p]
+    e = _ZERO
+    g = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    h = wp.mat33d()
+    if depth > _ZERO:
+        e = wp.float64(0.5) * k * depth * depth
+        g = -(k * depth) * n
+        h = k * wp.outer(n, n)
+    if mu_lam > _ZERO:
+        e_f, g_f, h_f = _friction((xi - x0_i[p]) - (xj - x0_j[p]), normal0[p], mu_lam, smoothing_m)
+        e = e + e_f
+        g = g + g_f
+        h = h + h_f
+    wp.atomic_add(energy, oi, e)
+    force_out[p] = -g
+    normal_out[p] = n
+    if derivatives != 0:
+        kp = flat_index.shape[1] // 3
+        gs = scale * g
+        hs = scale * h
+        _add_gradient(grad, flat_index, b, oi, si, cols_i, kp, gs)
+        _add_block(hess, flat_index, island_size, b, oi, si, cols_i, oi, si, cols_i, kp, hs)
+        if oj >= 0:
+            _add_gradient(grad, flat_index, b, oj, sj, cols_j, kp, -gs)
+            _add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oj, sj, cols_j, kp, hs)
+            _add_block(hess, flat_index, island_size, b, oi, si, cols_i, oj, sj, cols_j, kp, -hs)
+            _add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oi, si, cols_i, kp, -hs)
+
+
+
+def _wp(t: torch.Tensor, dtype=None) -> wp.array:
+    """A warp view of a contiguous torch tensor (no copy)."""
+    return wp.from_torch(t.contiguous(), dtype=dtype)
+
+
+@dataclass
+class ContactOutputs:
+    """What one evaluation of :class:`WarpContact` produced: contact energy per object (n,) J; with
+    derivatives the gradient (n_isl, N) and Newton matrix (n_isl, N, N), scaled by the solve's ``scale``;
+    the forces of active spheres (n, S, 3) N and pairs (P, 3) N (on side i) with their normals (zeros where
+    inactive). The tensors are the contact object's buffers: the next evaluation overwrites them."""
+
+    energy_j: torch.Tensor
+    grad: torch.Tensor | None
+    hess: torch.Tensor | None
+    scene_force_n: torch.Tensor
+    scene_normals: torch.Tensor
+    pair_force_i_n: torch.Tensor
+    pair_normals: torch.Tensor
+
+
+class WarpContact:
+    """The contact terms of one solve (fixed objects, islands, pairs and frozen start data) on warp.
+
+    The kernels' arguments are packed once (recorded launches); an evaluation copies the state into a
+    persistent buffer, clears the outputs and launches.
+
+    Args:
+        scene: the static scene (its warp box arrays and point grid are cached on it).
+        columns: (n,) 4 H per object; rest (n, S, 3) m, b (n, S, K), radius (n, S) m: the spheres.
+        stiffness_n_m: (n, S) per sphere (0 on padding); friction_scale_n: (n, S) mu lam of the start.
+        start_x_m, start_normals: (n, S, 3) frozen start positions and scene normals.
+        smoothing_m: friction smoothing length eps (m).
+        pairs: :class:`data_gen.sim.energy.pair_contact.PairSet` of the solve, or None.
+        flat_index: (n, 3K) island positions (:class:`data_gen.sim.model.DofLayout`); island_size N;
+            num_islands.
+        scale: factor of the gradient and matrix (the solver's h^2); energies are not scaled.
+    """
+
+    def __init__(self, scene: StaticScene, columns: torch.Tensor, rest: torch.Tensor, b: torch.Tensor,
+                 radius: torch.Tensor, stiffness_n_m: torch.Tensor, friction_scale_n: torch.Tensor,
+                 start_x_m: torch.Tensor, start_normals: torch.Tensor, smoothing_m: float, pairs,
+                 flat_index: torch.Tensor, island_size: int, num_islands: int, scale: float) -> None:  # fmt: skip
+        torch_device = rest.device
+        device = "cuda:0" if str(torch_device) == "cuda" else str(torch_device)
+        n, s = stiffness_n_m.shape
+        k = b.shape[2]
+        num_pairs = 0 if pairs is None else pairs.num_pairs
+        self.shape = (n, s, k, num_islands, island_size, num_pairs)
+
+        def zeros(*shape: int) -> torch.Tensor:
+            return torch.zeros(*shape, dtype=rest.dtype, device=torch_device)
+
+        self.tm = zeros(n, 3, k)
+        self.energy = zeros(n)
+        self.grad = zeros(num_islands * island_size)
+        self.hess = zeros(num_islands * island_size * island_size)
+        self.scene_force, self.scene_normals = zeros(n, s, 3), zeros(n, s, 3)
+        self.pair_force, self.pair_normals = zeros(num_pairs, 3), zeros(num_pairs, 3)
+        i32 = torch.int32
+        keep = [columns.to(i32), flat_index.to(i32)]  # converted tensors live as long as their warp views
+        common = [_wp(self.tm), _wp(keep[0]), _wp(rest, wp.vec3d), _wp(b)]
+        boxes = scene._device_boxes(device)
+        if scene.points is not None:
+            grid, static_points = scene._device_points(device)
+            points = [1, grid.id, static_points, wp.float64(scene.points.radius_m), wp.float64(scene.points.search_m)]
+        else:
+            empty = wp.zeros(0, dtype=wp.vec3d, device=device)
+            points = [0, wp.uint64(0), empty, wp.float64(0.0), wp.float64(1.0)]
+        no_derivatives = wp.zeros(0, dtype=wp.float64, device=device)
+
+        grad_hess = (_wp(self.grad), _wp(self.hess))
+
+        def tail(derivatives: bool) -> list:
+            g, h = grad_hess if derivatives else (no_derivatives, no_derivatives)
+            return [_wp(keep[1]), int(island_size), int(derivatives), wp.float64(scale), _wp(self.energy), g, h]
+
+        scene_inputs = [
+            *common, _wp(radius), _wp(stiffness_n_m), _wp(friction_scale_n), _wp(start_x_m, wp.vec3d),
+            _wp(start_normals, wp.vec3d), wp.float64(smoothing_m), int(scene.ground), *boxes, wp.float64(_FAR_M),
+            *points,
+        ]  # fmt: skip
+        scene_out = [_wp(self.scene_force, wp.vec3d), _wp(self.scene_normals, wp.vec3d)]
+        self._arguments = [keep, scene_inputs, scene_out, grad_hess, no_derivatives]  # the recorded launches hold raw pointers to these
+        self._launches = {
+            d: [wp.launch(scene_contact_kernel, dim=(n, s), inputs=[*scene_inputs, *tail(d), *scene_out],
+                          device=device, record_cmd=True)]
+            for d in (False, True)
+        }  # fmt: skip
+        if num_pairs:
+            ints = [t.to(i32) for t in (pairs.obj_i, pairs.sph_i, pairs.obj_j, pairs.sph_j)]
+            pair_inputs = [
+                *common, *[_wp(t) for t in ints], _wp(pairs.frozen_x_j, wp.vec3d), _wp(pairs.stiffness_n_m),
+                _wp(pairs.radius_sum_m), _wp(pairs.friction * pairs.normal_force_n), _wp(pairs.normal0, wp.vec3d),
+                _wp(pairs.x0_i, wp.vec3d), _wp(pairs.x0_j, wp.vec3d), wp.float64(smoothing_m),
+            ]  # fmt: skip
+            pair_out = [_wp(self.pair_force, wp.vec3d), _wp(self.pair_normals, wp.vec3d)]
+            self._arguments += [ints, pair_inputs, pair_out]
+            for d in (False, True):
+                self._launches[d].append(
+                    wp.launch(pair_contact_kernel, dim=num_pairs, inputs=[*pair_inputs, *tail(d), *pair_out],
+                              device=device, record_cmd=True)
+                )  # fmt: skip
+
+    def evaluate(self, tm: torch.Tensor, derivatives: bool = False) -> ContactOutputs:
+        """Contact terms at padded states ``tm`` (n, 3, K)."""
+        n, s, k, num_islands, size, _ = self.shape
+        self.tm.copy_(tm)
+        for buffer in (self.energy, self.scene_force, self.scene_normals, self.pair_force, self.pair_normals):
+            buffer.zero_()
+        if derivatives:
+            self.grad.zero_()
+            self.hess.zero_()
+        for launch in self._launches[derivatives]:
+            launch.launch()
+        return ContactOutputs(
+            self.energy,
+            self.grad.view(num_islands, size) if derivatives else None,
+            self.hess.view(num_islands, size, size) if derivatives else None,
+            self.scene_force, self.scene_normals, self.pair_force, self.pair_normals,
+        )  # fmt: skip
+
+
+__all__ = ["ContactOutputs", "WarpContact", "pair_contact_kernel", "scene_contact_kernel"]
