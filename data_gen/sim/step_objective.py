@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import torch
 
 from data_gen.sim.energy.contact_kernels import WarpContact
-from data_gen.sim.energy.elastic import elastic
+from data_gen.sim.energy.elastic import elastic_from_points
+from data_gen.sim.energy.elastic_kernel import WarpNeoHookean
 from data_gen.sim.energy.gravity import gravity
 from data_gen.sim.energy.inertia import inertia
 from data_gen.sim.energy.pair_contact import PairSet
@@ -77,7 +78,9 @@ class StepObjective(Objective):
         )  # fmt: skip
         rigid = model.num_handles == 1
         self.elastic_groups = [
-            (idx, model.cub_c[idx][:, :width], model.cub_volume_m3[idx][:, :width])
+            (idx, model.cub_c[idx][:, :width], WarpNeoHookean(
+                4 * model.num_handles[idx], model.cub_c[idx][:, :width], model.cub_volume_m3[idx][:, :width],
+                model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx]))
             for idx, width in ((torch.nonzero(rigid)[:, 0], 1), (torch.nonzero(~rigid)[:, 0], model.cub_c.shape[1]))
             if len(idx)
         ]  # one-handle objects integrate with their single cubature point
@@ -146,16 +149,20 @@ class StepObjective(Objective):
         """Elastic terms of all objects, evaluated per group of equal cubature width."""
         m = self.model
         n, k = tm.shape[0], m.columns
+        if len(self.elastic_groups) == 1 and len(self.elastic_groups[0][0]) == n:  # one group: every object in order
+            _, cub_c, points = self.elastic_groups[0]
+            energy, piola, hess, flags = points.evaluate(tm, derivatives)
+            return elastic_from_points(cub_c, energy, piola, hess if derivatives else None, flags, strict)
         out = ObjectTerms(
             torch.zeros(n, dtype=DTYPE),
             torch.zeros(n, 3, k, dtype=DTYPE) if derivatives else None,
             torch.zeros(n, 3 * k, 3 * k, dtype=DTYPE) if derivatives else None,
         )
-        for idx, cub_c, volume in self.elastic_groups:  # at most two groups: rigid and deformable
-            part = elastic(
-                cub_c, volume, m.mu_pa[idx], m.lam_pa[idx], m.spd_tolerance_pa[idx], tm[idx], derivatives,
-                None if strict is None else strict[idx],
-            )  # fmt: skip
+        for idx, cub_c, points in self.elastic_groups:  # at most two groups: rigid and deformable
+            energy, piola, hess, flags = points.evaluate(tm[idx], derivatives)
+            part = elastic_from_points(
+                cub_c, energy, piola, hess if derivatives else None, flags, None if strict is None else strict[idx]
+            )
             out.energy[idx] = part.energy
             if derivatives:
                 out.grad[idx] = part.grad

@@ -44,17 +44,47 @@ def elastic(
     energy = (vol * mat.energy_density(F, mu, lam)).reshape(n, p).sum(1)
     if not derivatives:
         return ObjectTerms(energy)
-    piola = mat.first_piola(F, mu, lam) * vol[:, None, None]  # (nP, 3, 3) [r, j]
-    # grad[r, a] = sum_i sum_j P_i[r, j] C_i[a, j]
-    grad = torch.einsum("nprj,npaj->nra", piola.reshape(n, p, 3, 3), cub_c)
+    piola = (mat.first_piola(F, mu, lam) * vol[:, None, None]).reshape(n, p, 3, 3)
     h = _project(neo_hookean_hessian_batched(F, mu, lam), spd_tolerance_pa, strict, n, p)
-    h = h * vol[:, None, None]
+    return ObjectTerms(energy, *_reduce(cub_c, piola, (h * vol[:, None, None]).reshape(n, p, 9, 9)))
+
+
+def elastic_from_points(
+    cub_c: torch.Tensor,
+    energy_j: torch.Tensor,
+    piola: torch.Tensor,
+    hess: torch.Tensor | None,
+    needs_projection: torch.Tensor | None,
+    strict: torch.Tensor | None = None,
+) -> ObjectTerms:
+    """Elastic terms from per-point quantities (:class:`data_gen.sim.energy.elastic_kernel.WarpNeoHookean`):
+    energies (n, P) J, volume-weighted Piola stresses (n, P, 3, 3) and 9 x 9 Hessians (n, P, 9, 9) with the
+    (n, P) flags of blocks that fail the near-SPD test; flagged blocks (and every block of ``strict``
+    objects) are eigen-clamped at 0 as in :func:`elastic`."""
+    energy = energy_j.sum(1)
+    if hess is None:
+        return ObjectTerms(energy)
+    n, p = energy_j.shape
+    bad = needs_projection if strict is None else needs_projection | strict[:, None]
+    if bool(bad.any()):
+        evals, evecs = torch.linalg.eigh(hess[bad])
+        hess = hess.clone()
+        hess[bad] = (evecs * evals.clamp(min=0.0)[:, None, :]) @ evecs.transpose(1, 2)
+    return ObjectTerms(energy, *_reduce(cub_c, piola, hess))
+
+
+def _reduce(cub_c: torch.Tensor, piola: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gradient (n, 3, K) and Hessian (n, 3K, 3K) from volume-weighted Piola stresses (n, P, 3, 3) and
+    point Hessians (n, P, 9, 9) with bases (n, P, K, 3)."""
+    n, p, k, _ = cub_c.shape
+    # grad[r, a] = sum_i sum_j P_i[r, j] C_i[a, j]
+    grad = torch.einsum("nprj,npaj->nra", piola, cub_c)
     # K[r, a, s, b] = sum_i sum_jk H_i[(r, j), (s, k)] C_i[a, j] C_i[b, k], as two batched products
     right = (h.reshape(n * p, 27, 3) @ cub_c.reshape(n * p, k, 3).transpose(1, 2))  # [(i), (r j s), b]
     right = right.reshape(n, p, 3, 3, 3 * k).permute(0, 1, 3, 2, 4).reshape(n, p * 3, 9 * k)  # [(i j), (r s b)]
     left = cub_c.permute(0, 2, 1, 3).reshape(n, k, p * 3)  # [a, (i j)]
     hess = (left @ right).reshape(n, k, 3, 3, k).permute(0, 2, 1, 3, 4).reshape(n, 3 * k, 3 * k)
-    return ObjectTerms(energy, grad, hess)
+    return grad, hess
 
 
 def neo_hookean_hessian_batched(F: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
@@ -81,4 +111,4 @@ def _project(h: torch.Tensor, tolerance_pa: torch.Tensor, strict: torch.Tensor |
     return h
 
 
-__all__ = ["elastic", "deformation_gradients", "neo_hookean_hessian", "neo_hookean_hessian_batched"]
+__all__ = ["elastic", "elastic_from_points", "deformation_gradients", "neo_hookean_hessian", "neo_hookean_hessian_batched"]

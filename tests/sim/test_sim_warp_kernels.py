@@ -1,13 +1,15 @@
-"""The fused warp contact kernels against the batched-torch reference terms (:mod:`data_gen.sim.energy`):
-energy per object, gradient and Newton matrix assembled into islands (cross blocks included), and the
-per-sphere and per-pair forces, on scenes with penetration, frozen friction, a frozen partner, a box and
-a static point cloud."""
+"""The warp kernels against the batched-torch reference terms (:mod:`data_gen.sim.energy`): contact (energy
+per object, gradient and Newton matrix assembled into islands with cross blocks, per-sphere and per-pair
+forces, on scenes with penetration, frozen friction, a frozen partner, a box and a static point cloud) and
+the neo-Hookean points (energy, gradient, Hessian with the near-SPD eigen-clamp and strict projection)."""
 
 import numpy as np
 import pytest
 import torch
 
 from data_gen.sim.energy.contact_kernels import WarpContact
+from data_gen.sim.energy.elastic import elastic, elastic_from_points
+from data_gen.sim.energy.elastic_kernel import WarpNeoHookean
 from data_gen.sim.energy.pair_contact import FROZEN, PairSet, pair_contact
 from data_gen.sim.energy.scene_contact import contact_start, scene_contact
 from data_gen.sim.energy.scene_sdf import SceneDistance
@@ -112,3 +114,26 @@ def test_kernels_equal_the_torch_terms(scene):
     assert torch.allclose(forces.pair_force_i_n, pc.force_i_n, rtol=1e-10, atol=1e-12)
     active = sc.force_n.norm(dim=2) > 0
     assert torch.allclose(forces.scene_normals[active], sc.normals[active], atol=1e-12)
+
+
+def test_neo_hookean_kernel_equals_the_torch_elastic_term_including_projection():
+    objs, model = _model(handles=(1, 3, 2))
+    gen = torch.Generator().manual_seed(11)
+    k = model.columns
+    tm = torch.zeros(3, 3, k, dtype=D)
+    for o in range(3):
+        cols = 4 * int(model.num_handles[o])
+        tm[o, :, :cols] = 0.05 * torch.randn(3, cols, generator=gen, dtype=D)
+    tm[1, :, :4] += 0.9 * torch.randn(3, 4, generator=gen, dtype=D)  # large deformation: some blocks indefinite
+    args = (model.cub_c, model.cub_volume_m3, model.mu_pa, model.lam_pa, model.spd_tolerance_pa)
+    points = WarpNeoHookean(4 * model.num_handles, *args)
+    for strict in (None, torch.tensor([False, True, False])):
+        ref = elastic(*args, tm, True, strict)
+        energy, piola, hess, flags = points.evaluate(tm, True)
+        got = elastic_from_points(model.cub_c, energy, piola, hess, flags, strict)
+        assert torch.allclose(got.energy, ref.energy, rtol=1e-12, atol=0)
+        assert torch.allclose(got.grad, ref.grad, rtol=1e-10, atol=1e-10 * float(ref.grad.abs().max()))
+        assert torch.allclose(got.hess, ref.hess, rtol=1e-9, atol=1e-10 * float(ref.hess.abs().max()))
+    assert bool(flags[1].any()) and not bool(flags[0].any())  # the deformed object needed the eigen-clamp
+    energy, _, _, _ = points.evaluate(tm, False)
+    assert torch.allclose(energy.sum(1), ref.energy, rtol=1e-12, atol=0)

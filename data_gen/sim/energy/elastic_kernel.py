@@ -1,0 +1,170 @@
+"""The per-cubature-point part of the stable neo-Hookean term as one warp kernel.
+
+For every cubature point of every object (padded layout of :class:`data_gen.sim.model.Model`) one thread
+forms ``F = I + Tm C_i`` and writes the volume-weighted energy ``V Psi(F)`` (J), first Piola stress
+``V P`` (N m) and, with derivatives, the Hessian ``V d2Psi/dF2`` (9 x 9, row-major vec(F)) together with
+the near-positive-definiteness test of :mod:`data_gen.sim.energy.elastic` (a Cholesky factorisation of
+``H + tol I``; a failed pivot flags the block for eigen-clamping). The formulas are those of
+:mod:`data_gen.sim.material` (the torch reference, which the tests compare against):
+
+    Psi = mu/2 (I1 - 3) + lam'/2 (J - 1)^2 - mu (J - 1),       lam' = lam + mu,
+    P   = mu F + (lam' (J - 1) - mu) cof F,
+    H   = mu I9 + lam' g g^T + (lam' (J - 1) - mu) d2J/dF2,     g = vec(cof F),
+    d2J/dF_ij dF_kl = eps_ikm eps_jln F_mn.
+
+The reduction to reduced coordinates (a few batched matrix products) and the eigen-clamping of flagged
+blocks stay in torch (:func:`data_gen.sim.energy.elastic.elastic_from_points`).
+"""
+
+from __future__ import annotations
+
+import torch
+import warp as wp
+
+wp.init()
+
+mat99d = wp.types.matrix(shape=(9, 9), dtype=wp.float64)
+
+
+@wp.func
+def _cofactor(f: wp.mat33d):
+    """cof F = J F^-T: column j is the cross product of the other two columns of F."""
+    c0 = wp.vec3d(f[0, 0], f[1, 0], f[2, 0])
+    c1 = wp.vec3d(f[0, 1], f[1, 1], f[2, 1])
+    c2 = wp.vec3d(f[0, 2], f[1, 2], f[2, 2])
+    x0 = wp.cross(c1, c2)
+    x1 = wp.cross(c2, c0)
+    x2 = wp.cross(c0, c1)
+    return wp.mat33d(x0[0], x1[0], x2[0], x0[1], x1[1], x2[1], x0[2], x1[2], x2[2])
+
+
+@wp.func
+def _levi_civita(i: int, k: int):
+    """eps_ikm for i != k (m the third index): +1 when (i, k, m) is cyclic, -1 otherwise."""
+    s = wp.float64(-1.0)
+    if (k - i + 3) % 3 == 1:
+        s = wp.float64(1.0)
+    return s
+
+
+@wp.func
+def _not_positive_definite(h: mat99d, shift: wp.float64):
+    """1 when ``h + shift I`` has a non-positive (or NaN) Cholesky pivot, else 0."""
+    lower = mat99d()
+    bad = int(0)
+    for j in range(9):
+        if bad == 0:
+            d = h[j, j] + shift
+            for k in range(j):
+                d = d - lower[j, k] * lower[j, k]
+            if not (d > wp.float64(0.0)):
+                bad = 1
+            else:
+                root = wp.sqrt(d)
+                lower[j, j] = root
+                for i in range(j + 1, 9):
+                    v = h[i, j]
+                    for k in range(j):
+                        v = v - lower[i, k] * lower[j, k]
+                    lower[i, j] = v / root
+    return bad
+
+
+@wp.kernel
+def neo_hookean_points_kernel(
+    tm: wp.array3d(dtype=wp.float64),
+    columns: wp.array(dtype=wp.int32),
+    cub_c: wp.array4d(dtype=wp.float64),
+    volume: wp.array2d(dtype=wp.float64),
+    mu_pa: wp.array(dtype=wp.float64),
+    lam_pa: wp.array(dtype=wp.float64),
+    tolerance_pa: wp.array(dtype=wp.float64),
+    derivatives: int,
+    energy: wp.array2d(dtype=wp.float64),
+    piola: wp.array2d(dtype=wp.mat33d),
+    hess: wp.array2d(dtype=mat99d),
+    needs_projection: wp.array2d(dtype=wp.int32),
+):
+    """Point (o, i): writes ``energy`` (n, P) J, ``piola`` (n, P) V P and, when ``derivatives``, ``hess``
+    (n, P) V H and ``needs_projection`` (n, P) (1 where ``H + tol I`` is not positive definite)."""
+    o, i = wp.tid()
+    v = volume[o, i]
+    if v == wp.float64(0.0):
+        return
+    f = wp.identity(n=3, dtype=wp.float64)
+    for a in range(int(columns[o])):
+        for r in range(3):
+            t = tm[o, r, a]
+            for j in range(3):
+                f[r, j] = f[r, j] + t * cub_c[o, i, a, j]
+    mu = mu_pa[o]
+    lam_s = lam_pa[o] + mu
+    det = wp.determinant(f)
+    jm1 = det - wp.float64(1.0)
+    i1 = wp.ddot(f, f)
+    energy[o, i] = v * (wp.float64(0.5) * mu * (i1 - wp.float64(3.0)) + wp.float64(0.5) * lam_s * jm1 * jm1 - mu * jm1)
+    cof = _cofactor(f)
+    coef = lam_s * jm1 - mu
+    piola[o, i] = v * (mu * f + coef * cof)
+    if derivatives == 0:
+        return
+    h = mat99d()
+    for row in range(9):
+        ri = row // 3
+        rj = row % 3
+        g_row = cof[ri, rj]
+        for col in range(9):
+            ck = col // 3
+            cl = col % 3
+            value = lam_s * g_row * cof[ck, cl]
+            if ri != ck and rj != cl:
+                m = 3 - ri - ck
+                nn = 3 - rj - cl
+                value = value + coef * _levi_civita(ri, ck) * _levi_civita(rj, cl) * f[m, nn]
+            if row == col:
+                value = value + mu
+            h[row, col] = value
+    needs_projection[o, i] = _not_positive_definite(h, tolerance_pa[o])
+    hess[o, i] = v * h
+
+
+class WarpNeoHookean:
+    """Per-point neo-Hookean quantities of a fixed set of objects (one solve), with persistent buffers and
+    recorded launches.
+
+    Args:
+        columns: (n,) 4 H; cub_c: (n, P, K, 3) bases; volume_m3: (n, P) (0 on padding); mu_pa, lam_pa,
+            tolerance_pa: (n,) Pa.
+    """
+
+    def __init__(self, columns: torch.Tensor, cub_c: torch.Tensor, volume_m3: torch.Tensor, mu_pa: torch.Tensor,
+                 lam_pa: torch.Tensor, tolerance_pa: torch.Tensor) -> None:  # fmt: skip
+        n, p, k, _ = cub_c.shape
+        device = "cuda:0" if str(cub_c.device) == "cuda" else str(cub_c.device)
+        like = dict(dtype=cub_c.dtype, device=cub_c.device)
+        self.tm = torch.zeros(n, 3, k, **like)
+        self.energy = torch.zeros(n, p, **like)
+        self.piola = torch.zeros(n, p, 3, 3, **like)
+        self.hess = torch.zeros(n, p, 9, 9, **like)
+        self.needs_projection = torch.zeros(n, p, dtype=torch.int32, device=cub_c.device)
+        constants = [columns.to(torch.int32).contiguous(), cub_c.contiguous(), volume_m3.contiguous(),
+                     mu_pa.contiguous(), lam_pa.contiguous(), tolerance_pa.contiguous()]  # fmt: skip
+        arrays = [wp.from_torch(self.tm)] + [wp.from_torch(t) for t in constants]
+        outputs = [wp.from_torch(self.energy), wp.from_torch(self.piola, dtype=wp.mat33d),
+                   wp.from_torch(self.hess, dtype=mat99d), wp.from_torch(self.needs_projection)]  # fmt: skip
+        self._arguments = [constants, arrays, outputs]  # the recorded launches hold raw pointers to these
+        self._launches = {
+            d: wp.launch(neo_hookean_points_kernel, dim=(n, p), inputs=[*arrays, int(d), *outputs], device=device,
+                         record_cmd=True)
+            for d in (False, True)
+        }  # fmt: skip
+
+    def evaluate(self, tm: torch.Tensor, derivatives: bool) -> tuple[torch.Tensor, ...]:
+        """Energies (n, P) J, V P (n, P, 3, 3), V H (n, P, 9, 9) and the projection flags (n, P) bool at the
+        padded states ``tm`` (n, 3, K). The tensors are buffers: the next evaluation overwrites them."""
+        self.tm.copy_(tm)
+        self._launches[derivatives].launch()
+        return self.energy, self.piola, self.hess, self.needs_projection.bool()
+
+
+__all__ = ["WarpNeoHookean", "mat99d", "neo_hookean_points_kernel"]
