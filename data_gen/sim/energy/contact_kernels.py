@@ -336,40 +336,35 @@ class WarpContact:
         else:
             empty = wp.zeros(0, dtype=wp.vec3d, device=device)
             points = [0, wp.uint64(0), empty, wp.float64(0.0), wp.float64(1.0)]
-        no_derivatives = wp.zeros(0, dtype=wp.float64, device=device)
-
-        grad_hess = (_wp(self.grad), _wp(self.hess))
-
-        def tail(derivatives: bool) -> list:
-            g, h = grad_hess if derivatives else (no_derivatives, no_derivatives)
-            return [_wp(keep[1]), int(island_size), int(derivatives), wp.float64(scale), _wp(self.energy), g, h]
-
+        # shared last arguments of both kernels; [2] is ``derivatives``
+        tail = [_wp(keep[1]), int(island_size), 1, wp.float64(scale), _wp(self.energy), _wp(self.grad), _wp(self.hess)]
         scene_inputs = [
             *common, _wp(radius), _wp(stiffness_n_m), _wp(friction_scale_n), _wp(start_x_m, wp.vec3d),
             _wp(start_normals, wp.vec3d), wp.float64(smoothing_m), int(scene.ground), *boxes, wp.float64(_FAR_M),
-            *points,
+            *points, *tail, _wp(self.scene_force, wp.vec3d), _wp(self.scene_normals, wp.vec3d),
         ]  # fmt: skip
-        scene_out = [_wp(self.scene_force, wp.vec3d), _wp(self.scene_normals, wp.vec3d)]
-        self._arguments = [keep, scene_inputs, scene_out, grad_hess, no_derivatives]  # the recorded launches hold raw pointers to these
-        self._launches = {
-            d: [wp.launch(scene_contact_kernel, dim=(n, s), inputs=[*scene_inputs, *tail(d), *scene_out],
-                          device=device, record_cmd=True)]
-            for d in (False, True)
-        }  # fmt: skip
+        self._arguments = [keep, scene_inputs]  # the recorded launches hold raw pointers to these
+
+        def derivatives_index(inputs: list) -> int:  # every kernel ends with (*tail, force_out, normal_out)
+            return len(inputs) - 2 - len(tail) + 2
+
+        # one recorded launch per kernel; an evaluation sets its ``derivatives`` argument
+        self._launches = [(wp.launch(scene_contact_kernel, dim=(n, s), inputs=scene_inputs, device=device,
+                                     record_cmd=True), derivatives_index(scene_inputs))]  # fmt: skip
         if num_pairs:
             ints = [t.to(i32) for t in (pairs.obj_i, pairs.sph_i, pairs.obj_j, pairs.sph_j)]
             pair_inputs = [
                 *common, *[_wp(t) for t in ints], _wp(pairs.frozen_x_j, wp.vec3d), _wp(pairs.stiffness_n_m),
                 _wp(pairs.radius_sum_m), _wp(pairs.friction * pairs.normal_force_n), _wp(pairs.normal0, wp.vec3d),
                 _wp(pairs.x0_i, wp.vec3d), _wp(pairs.x0_j, wp.vec3d), wp.float64(smoothing_m),
+                *tail, _wp(self.pair_force, wp.vec3d), _wp(self.pair_normals, wp.vec3d),
             ]  # fmt: skip
-            pair_out = [_wp(self.pair_force, wp.vec3d), _wp(self.pair_normals, wp.vec3d)]
-            self._arguments += [ints, pair_inputs, pair_out]
-            for d in (False, True):
-                self._launches[d].append(
-                    wp.launch(pair_contact_kernel, dim=num_pairs, inputs=[*pair_inputs, *tail(d), *pair_out],
-                              device=device, record_cmd=True)
-                )  # fmt: skip
+            self._arguments += [ints, pair_inputs]
+            self._launches.append(
+                (wp.launch(pair_contact_kernel, dim=num_pairs, inputs=pair_inputs, device=device, record_cmd=True),
+                 derivatives_index(pair_inputs))
+            )  # fmt: skip
+        self._derivatives = True
 
     def evaluate(self, tm: torch.Tensor, derivatives: bool = False) -> ContactOutputs:
         """Contact terms at padded states ``tm`` (n, 3, K)."""
@@ -380,7 +375,11 @@ class WarpContact:
         if derivatives:
             self.grad.zero_()
             self.hess.zero_()
-        for launch in self._launches[derivatives]:
+        if derivatives != self._derivatives:
+            for launch, index in self._launches:
+                launch.set_param_at_index(index, int(derivatives))
+            self._derivatives = derivatives
+        for launch, _ in self._launches:
             launch.launch()
         return ContactOutputs(
             self.energy,

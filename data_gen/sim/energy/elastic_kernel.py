@@ -153,17 +153,19 @@ class WarpNeoHookean:
         outputs = [wp.from_torch(self.energy), wp.from_torch(self.piola, dtype=wp.mat33d),
                    wp.from_torch(self.hess, dtype=mat99d), wp.from_torch(self.needs_projection)]  # fmt: skip
         self._arguments = [constants, arrays, outputs]  # the recorded launches hold raw pointers to these
-        self._launches = {
-            d: wp.launch(neo_hookean_points_kernel, dim=(n, p), inputs=[*arrays, int(d), *outputs], device=device,
-                         record_cmd=True)
-            for d in (False, True)
-        }  # fmt: skip
+        self._derivatives_index = len(arrays)
+        self._launch = wp.launch(neo_hookean_points_kernel, dim=(n, p), inputs=[*arrays, 1, *outputs], device=device,
+                                 record_cmd=True)  # fmt: skip
+        self._derivatives = True
 
     def evaluate(self, tm: torch.Tensor, derivatives: bool) -> tuple[torch.Tensor, ...]:
         """Energies (n, P) J, V P (n, P, 3, 3), V H (n, P, 9, 9) and the projection flags (n, P) bool at the
         padded states ``tm`` (n, 3, K). The tensors are buffers: the next evaluation overwrites them."""
         self.tm.copy_(tm)
-        self._launches[derivatives].launch()
+        if derivatives != self._derivatives:
+            self._launch.set_param_at_index(self._derivatives_index, int(derivatives))
+            self._derivatives = derivatives
+        self._launch.launch()
         return self.energy, self.piola, self.hess, self.needs_projection.bool()
 
 
