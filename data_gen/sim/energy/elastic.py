@@ -79,11 +79,12 @@ def _reduce(cub_c: torch.Tensor, piola: torch.Tensor, h: torch.Tensor) -> tuple[
     n, p, k, _ = cub_c.shape
     # grad[r, a] = sum_i sum_j P_i[r, j] C_i[a, j]
     grad = torch.einsum("nprj,npaj->nra", piola, cub_c)
-    # K[r, a, s, b] = sum_i sum_jk H_i[(r, j), (s, k)] C_i[a, j] C_i[b, k], as two batched products
-    right = (h.reshape(n * p, 27, 3) @ cub_c.reshape(n * p, k, 3).transpose(1, 2))  # [(i), (r j s), b]
-    right = right.reshape(n, p, 3, 3, 3 * k).permute(0, 1, 3, 2, 4).reshape(n, p * 3, 9 * k)  # [(i j), (r s b)]
+    # K[r, a, s, b] = sum_i sum_j C_i[a, j] (sum_k H_i[(r, j), (s, k)] C_i[b, k]): the small per-point H is
+    # reordered to (j, r, s, k) so that the inner product comes out as [(i j), (r s b)] without a copy
+    h_jrs = h.reshape(n, p, 3, 3, 3, 3).transpose(2, 3).reshape(n * p, 27, 3)
+    inner = (h_jrs @ cub_c.reshape(n * p, k, 3).transpose(1, 2)).reshape(n, p * 3, 9 * k)
     left = cub_c.permute(0, 2, 1, 3).reshape(n, k, p * 3)  # [a, (i j)]
-    hess = (left @ right).reshape(n, k, 3, 3, k).permute(0, 2, 1, 3, 4).reshape(n, 3 * k, 3 * k)
+    hess = (left @ inner).reshape(n, k, 3, 3, k).transpose(1, 2).reshape(n, 3 * k, 3 * k)
     return grad, hess
 
 
