@@ -115,6 +115,18 @@ def test_kernels_equal_the_torch_terms(scene):
     active = sc.force_n.norm(dim=2) > 0
     assert torch.allclose(forces.scene_normals[active], sc.normals[active], atol=1e-12)
 
+    # lifted clear of the scene: no penetration left, only the frozen friction of the start acts
+    lifted = tm.clone()
+    lifted[:, 2, 3] += 0.3
+    x_up = model.sphere_positions(lifted)
+    sc_up = scene_contact(distance, x_up, model.sphere_b, model.sphere_radius_m, valid, sphere_k,
+                          friction[:, None].expand_as(sphere_k).contiguous(), start, smoothing, True)  # fmt: skip
+    sdf_up = distance(x_up.reshape(-1, 3))[0].reshape(valid.shape)
+    assert float(sc_up.terms.energy.sum()) > 0 and bool((sdf_up - model.sphere_radius_m)[valid].min() > 0)
+    out_up = contact.evaluate(lifted, True)
+    assert torch.allclose(out_up.energy_j - pair_contact(pairs, x_up, model.sphere_b, smoothing, False).energy,
+                          sc_up.terms.energy, rtol=1e-10, atol=1e-15)  # fmt: skip
+
 
 def test_neo_hookean_kernel_equals_the_torch_elastic_term_including_projection():
     objs, model = _model(handles=(1, 3, 2))
