@@ -158,7 +158,10 @@ class DofLayout:
     flat_index: torch.Tensor
     num_islands: int
     island_size: int
-    _diagonal: tuple[torch.Tensor, torch.Tensor | None] | None = field(default=None, repr=False, compare=False)
+    # the diagonal blocks' positions in the island matrices and their entries' positions in the blocks
+    _diagonal: tuple[torch.Tensor, torch.Tensor | None] | None = field(
+        default=None, repr=False, compare=False
+    )
     # derived in __post_init__ (gather / scatter indices of the conversions)
     _valid: torch.Tensor = field(init=False, repr=False, compare=False)
     _all_valid: bool = field(init=False, repr=False, compare=False)
@@ -184,27 +187,32 @@ class DofLayout:
         per_object = self.num_islands == n and bool(torch.equal(self.island, torch.arange(n)))
         for name, value in (
             ("_valid", valid), ("_all_valid", all_valid), ("_gather", gather),
-            ("_scatter", scatter if all_used else scatter.clamp(min=0)), ("_used", None if all_used else used),
+            ("_scatter", scatter if all_used else scatter.clamp(min=0)),
+            ("_used", None if all_used else used),
             ("one_island_per_object", per_object),
         ):  # fmt: skip
             object.__setattr__(self, name, value)
 
     @staticmethod
     def build(num_handles: torch.Tensor, island: torch.Tensor, columns: int) -> DofLayout:
+        """The layout of objects with ``num_handles`` (n,) in islands ``island`` (n,) (slots 0..max): an
+        island's objects follow each other in object order, each in its unpadded q-ordering."""
         n = int(num_handles.shape[0])
         num_islands = int(island.max()) + 1 if n else 0
-        dofs = (12 * num_handles).numpy()
-        offsets = np.zeros(n, dtype=np.int64)
-        sizes = np.zeros(max(num_islands, 1), dtype=np.int64)
-        for o in range(n):  # once per solve: objects in island order
-            offsets[o] = sizes[int(island[o])]
-            sizes[int(island[o])] += dofs[o]
+        width = 4 * num_handles  # (n,) unpadded columns 4H
+        dofs = 3 * width
+        # offset of each object in its island: the DOFs of the island's earlier objects
+        same = island[:, None] == island[None, :]
+        earlier = torch.arange(n)[None, :] < torch.arange(n)[:, None]
+        offsets = (dofs[None, :] * (same & earlier)).sum(1)
+        sizes = torch.zeros(max(num_islands, 1), dtype=torch.int64).index_add_(0, island, dofs)
         size = int(sizes.max()) if n else 0
-        flat = torch.full((n, 3 * columns), -1, dtype=torch.int64)
-        for o in range(n):
-            pos = padded_index(int(num_handles[o]), columns)
-            flat[o, pos] = int(island[o]) * size + int(offsets[o]) + torch.arange(pos.shape[0])
-        return DofLayout(island, flat, num_islands, size)
+        # padded entry (r, a) of object o, a < 4H: unpadded entry r 4H + a (see padded_index)
+        r = torch.arange(3)[None, :, None]
+        a = torch.arange(columns)[None, None, :]
+        local = r * width[:, None, None] + a
+        flat = torch.where(a < width[:, None, None], (island * size + offsets)[:, None, None] + local, -1)
+        return DofLayout(island, flat.reshape(n, 3 * columns), num_islands, size)
 
     @property
     def valid(self) -> torch.Tensor:

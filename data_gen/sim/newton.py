@@ -130,6 +130,7 @@ def minimise(
     all_active = True  # every island still active (known on the host: masks can be skipped)
     converged = torch.zeros(n_isl, dtype=torch.bool)
     iterations = torch.zeros(n_isl, dtype=torch.int64)
+    iterations_all_active = 0  # taken while every island was active (added to ``iterations`` at the end)
     trust_limited = torch.zeros((), dtype=torch.int64)  # counted on the device, read once at the end
     carried: Evaluation | None = None  # derivatives at the accepted point, from the line search's first trial
     for _ in range(settings.iterations):
@@ -156,10 +157,11 @@ def minimise(
             dq[failed] = dq_s
             ev.value[failed] = strict.value[failed]
             ev.grad[failed] = strict.grad[failed]
-        iterations += active
-        if not all_active:
+        if all_active:
+            iterations_all_active += 1
+        else:
+            iterations += active
             dq = dq * active[:, None]
-        slope = (ev.grad * dq).sum(1)
         motion = objective.point_motion(dq)
         alpha = torch.clamp(trust_m / motion.clamp(min=1e-300), max=1.0)
         whole = alpha >= 1.0
@@ -170,6 +172,7 @@ def minimise(
         accepted = small if all_active else ~active | small  # islands done, or converging now, need no search
         all_accepted = bool(accepted.all())
         searches = 0 if all_accepted else settings.line_search_steps + EXTRA_HALVINGS
+        slope = (ev.grad * dq).sum(1) if searches else None  # directional derivative, for the Armijo test
         for trial_index in range(searches):
             # islands accepted earlier sit at their accepted alpha (their values are not looked at); the first
             # trial is evaluated with derivatives: when every island takes it, the next iteration starts there
@@ -206,6 +209,7 @@ def minimise(
         if num_active == 0:
             break
         all_active = num_active == n_isl
+    iterations += iterations_all_active
     counters["trust_limited_steps"] += int(trust_limited)
     counters["unconverged_solves"] += int((~converged).sum())
     return NewtonResult(q, iterations, converged, counters)

@@ -204,7 +204,8 @@ def _reference_to_islands(layout: DofLayout, padded: torch.Tensor) -> torch.Tens
 
 def _reference_to_objects(layout: DofLayout, flat: torch.Tensor) -> torch.Tensor:
     mask = layout.flat_index >= 0
-    out = torch.where(mask, flat.reshape(-1)[layout.flat_index.clamp(min=0)], torch.zeros((), dtype=flat.dtype))
+    out = flat.reshape(-1)[layout.flat_index.clamp(min=0)]
+    out = torch.where(mask, out, torch.zeros((), dtype=flat.dtype))
     return out.reshape(layout.flat_index.shape[0], 3, -1)
 
 
@@ -263,7 +264,8 @@ class _Quartic(_Quadratic):
 def test_newton_islands_converge_at_their_own_iteration_and_stop_moving():
     obj = _Quartic()
     q0 = torch.zeros(2, 2, dtype=D)
-    res = minimise(obj, q0, torch.ones(2, dtype=D), torch.tensor([10.0, 10.0], dtype=D), NewtonSettings(50, 1e-10, 8))
+    trust = torch.tensor([10.0, 10.0], dtype=D)
+    res = minimise(obj, q0, torch.ones(2, dtype=D), trust, NewtonSettings(50, 1e-10, 8))
     assert bool(res.converged.all()) and res.counters["unconverged_solves"] == 0
     assert res.iterations[0] == 2 and res.iterations[1] > 3  # island 0 stopped while island 1 went on
     assert torch.allclose(res.q[0], obj.c[0], atol=1e-12)
