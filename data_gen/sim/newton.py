@@ -78,9 +78,9 @@ def _direction(hess: torch.Tensor, grad: torch.Tensor) -> tuple[torch.Tensor, to
     no masking, one host sync)."""
     hess = torch.add(hess, hess.transpose(1, 2)).mul_(0.5)
     chol, info = torch.linalg.cholesky_ex(hess)
-    bad = info != 0
-    if not bool(bad.any()):
+    if not bool(info.any()):  # info: 0 where the factorisation succeeded
         return torch.cholesky_solve(grad[:, :, None], chol)[:, :, 0].neg_(), None
+    bad = info != 0
     ridge = 1e-10 * hess[bad].diagonal(dim1=1, dim2=2).abs().amax(dim=1)
     eye = _eye(hess.shape[1], hess.dtype)
     chol_r, info_r = torch.linalg.cholesky_ex(hess[bad] + ridge[:, None, None] * eye)
@@ -173,11 +173,13 @@ def minimise(
         all_accepted = bool(accepted.all())
         searches = 0 if all_accepted else settings.line_search_steps + EXTRA_HALVINGS
         slope = (ev.grad * dq).sum(1) if searches else None  # directional derivative, for the Armijo test
+        trial_q = None  # the point of the latest trial
         for trial_index in range(searches):
             # islands accepted earlier sit at their accepted alpha (their values are not looked at); the first
             # trial is evaluated with derivatives: when every island takes it, the next iteration starts there
             first = trial_index == 0
-            trial_ev = objective.evaluate(q + alpha[:, None] * dq, first)
+            trial_q = q + alpha[:, None] * dq
+            trial_ev = objective.evaluate(trial_q, first)
             trial = trial_ev.value
             counters["evaluations_with_derivatives" if first else "evaluations"] += 1
             if trial_index < settings.line_search_steps:
@@ -197,14 +199,21 @@ def minimise(
         if all_accepted:  # no island failed its search: the moving islands are the active ones
             failed_ls = None
             moving = active
+            # the search stopped right after its trial at the final alpha; inactive islands have dq = 0
+            q = q + (alpha if all_active else alpha * moving)[:, None] * dq if trial_q is None else trial_q
         else:
             failed_ls = active & ~accepted
             counters["line_search_failures"] += int(failed_ls.sum())
             moving = active & accepted
-        q = q + (alpha if all_active and all_accepted else alpha * moving)[:, None] * dq
-        done = moving & ((alpha * mass <= threshold) | small)
+            q = q + (alpha * moving)[:, None] * dq
+        converging = (alpha * mass <= threshold) | small
+        # every island moves when all are active and none failed its search
+        done = converging if all_active and failed_ls is None else moving & converging
         converged |= done
-        active = active & ~done if failed_ls is None else active & ~done & ~failed_ls
+        if failed_ls is not None:
+            active = active & ~done & ~failed_ls
+        else:
+            active = ~done if all_active else active & ~done
         num_active = int(active.sum())
         if num_active == 0:
             break

@@ -118,8 +118,8 @@ class StepObjective(Objective):
 
     def _point_motion_objects(self, dtm: torch.Tensor) -> torch.Tensor:
         """Largest contact-sphere displacement (m) per island of padded changes ``dtm`` (n, 3, K)."""
-        displacement = self.model.sphere_b @ dtm.transpose(1, 2)  # (n, S, 3)
-        move = torch.linalg.vector_norm(displacement, dim=2) * self.model.sphere_valid
+        # padded spheres have zero basis rows (Model.build): they do not move, no mask needed
+        move = torch.linalg.vector_norm(self.model.sphere_b @ dtm.transpose(1, 2), dim=2)
         return self._per_island(move.amax(dim=1), reduce="amax")
 
     def motion_scale(self) -> torch.Tensor:
