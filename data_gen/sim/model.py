@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
-import numpy as np
 import torch
 
 from data_gen.sim.contact_points import ContactPoints

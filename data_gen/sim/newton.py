@@ -131,7 +131,7 @@ def minimise(
     converged = torch.zeros(n_isl, dtype=torch.bool)
     iterations = torch.zeros(n_isl, dtype=torch.int64)
     iterations_all_active = 0  # taken while every island was active (added to ``iterations`` at the end)
-    trust_limited = torch.zeros((), dtype=torch.int64)  # counted on the device, read once at the end
+    trust_limited = torch.zeros((), dtype=torch.int64)  # summed as a tensor, read once at the end
     carried: Evaluation | None = None  # derivatives at the accepted point, from the line search's first trial
     for _ in range(settings.iterations):
         if carried is None:
@@ -199,8 +199,10 @@ def minimise(
         if all_accepted:  # no island failed its search: the moving islands are the active ones
             failed_ls = None
             moving = active
-            # the search stopped right after its trial at the final alpha; inactive islands have dq = 0
-            q = q + (alpha if all_active else alpha * moving)[:, None] * dq if trial_q is None else trial_q
+            if trial_q is not None:  # the search stopped right after its trial at the final alpha (dq = 0 on
+                q = trial_q  # inactive islands): the accepted point is that trial's point
+            else:
+                q = q + (alpha if all_active else alpha * moving)[:, None] * dq
         else:
             failed_ls = active & ~accepted
             counters["line_search_failures"] += int(failed_ls.sum())
