@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
-import numpy as np
 import torch
 
 from data_gen.sim.contact_points import ContactPoints
@@ -146,46 +145,93 @@ class DofLayout:
         island: (n,) island slot of each object.
         flat_index: (n, 3K) index into the (num_islands * N) flat island vectors, -1 on padded entries.
         num_islands, island_size: N = the largest island's unpadded DOF count.
+        one_island_per_object: derived: island ``o`` holds object ``o`` alone (per-island sums and maxima
+            are the per-object values).
+
+    The layout is fixed for a solve, so the gather / scatter indices of :meth:`to_objects`,
+    :meth:`to_islands` and :meth:`assemble` are derived once (``__post_init__``) and every conversion is
+    one or two indexing operations.
     """
 
     island: torch.Tensor
     flat_index: torch.Tensor
     num_islands: int
     island_size: int
-    _diagonal: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False, compare=False)
+    # the diagonal blocks' positions in the island matrices and their entries' positions in the blocks
+    _diagonal: tuple[torch.Tensor, torch.Tensor | None] | None = field(
+        default=None, repr=False, compare=False
+    )
+    # derived in __post_init__ (gather / scatter indices of the conversions)
+    _valid: torch.Tensor = field(init=False, repr=False, compare=False)
+    _all_valid: bool = field(init=False, repr=False, compare=False)
+    _gather: torch.Tensor = field(init=False, repr=False, compare=False)
+    _scatter: torch.Tensor = field(init=False, repr=False, compare=False)
+    _used: torch.Tensor | None = field(init=False, repr=False, compare=False)
+    one_island_per_object: bool = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        valid = self.flat_index >= 0
+        flat = self.flat_index.reshape(-1)
+        all_valid = bool(valid.all())
+        # to_objects: padded entry p reads island entry _gather[p] (0 where padded; masked by _valid)
+        gather = flat if all_valid else flat.clamp(min=0)
+        # to_islands: island entry f reads padded entry _scatter[f] (0 where unused; masked by _used)
+        total = self.num_islands * self.island_size
+        scatter = torch.full((total,), -1, dtype=torch.int64)
+        positions = torch.arange(flat.shape[0])
+        scatter[flat[valid.reshape(-1)]] = positions[valid.reshape(-1)]
+        used = scatter >= 0
+        all_used = bool(used.all())
+        n = int(self.island.shape[0])
+        per_object = self.num_islands == n and bool(torch.equal(self.island, torch.arange(n)))
+        for name, value in (
+            ("_valid", valid), ("_all_valid", all_valid), ("_gather", gather),
+            ("_scatter", scatter if all_used else scatter.clamp(min=0)),
+            ("_used", None if all_used else used),
+            ("one_island_per_object", per_object),
+        ):  # fmt: skip
+            object.__setattr__(self, name, value)
 
     @staticmethod
     def build(num_handles: torch.Tensor, island: torch.Tensor, columns: int) -> DofLayout:
+        """The layout of objects with ``num_handles`` (n,) in islands ``island`` (n,) (slots 0..max): an
+        island's objects follow each other in object order, each in its unpadded q-ordering."""
         n = int(num_handles.shape[0])
         num_islands = int(island.max()) + 1 if n else 0
-        dofs = (12 * num_handles).numpy()
-        offsets = np.zeros(n, dtype=np.int64)
-        sizes = np.zeros(max(num_islands, 1), dtype=np.int64)
-        for o in range(n):  # once per solve: objects in island order
-            offsets[o] = sizes[int(island[o])]
-            sizes[int(island[o])] += dofs[o]
+        width = 4 * num_handles  # (n,) unpadded columns 4H
+        dofs = 3 * width
+        # offset of each object in its island: the DOFs of the island's earlier objects
+        same = island[:, None] == island[None, :]
+        earlier = torch.arange(n)[None, :] < torch.arange(n)[:, None]
+        offsets = (dofs[None, :] * (same & earlier)).sum(1)
+        sizes = torch.zeros(max(num_islands, 1), dtype=torch.int64).index_add_(0, island, dofs)
         size = int(sizes.max()) if n else 0
-        flat = torch.full((n, 3 * columns), -1, dtype=torch.int64)
-        for o in range(n):
-            pos = padded_index(int(num_handles[o]), columns)
-            flat[o, pos] = int(island[o]) * size + int(offsets[o]) + torch.arange(pos.shape[0])
-        return DofLayout(island, flat, num_islands, size)
+        # padded entry (r, a) of object o, a < 4H: unpadded entry r 4H + a (see padded_index)
+        r = torch.arange(3)[None, :, None]
+        a = torch.arange(columns)[None, None, :]
+        local = r * width[:, None, None] + a
+        flat = torch.where(a < width[:, None, None], (island * size + offsets)[:, None, None] + local, -1)
+        return DofLayout(island, flat.reshape(n, 3 * columns), num_islands, size)
 
     @property
     def valid(self) -> torch.Tensor:
-        return self.flat_index >= 0
+        """(n, 3K) bool: entries of the padded layout that are degrees of freedom."""
+        return self._valid
 
     def to_islands(self, padded: torch.Tensor) -> torch.Tensor:
-        """Padded per-object vectors (n, 3, K) -> island vectors (num_islands, N)."""
-        out = torch.zeros(self.num_islands * self.island_size, dtype=padded.dtype)
-        mask = self.valid
-        out[self.flat_index[mask]] = padded.reshape(mask.shape)[mask]
+        """Padded per-object vectors (n, 3, K) -> island vectors (num_islands, N) (a new tensor; zeros on the
+        unused entries of smaller islands)."""
+        out = padded.reshape(-1).index_select(0, self._scatter)
+        if self._used is not None:
+            out = torch.where(self._used, out, torch.zeros((), dtype=out.dtype))
         return out.reshape(self.num_islands, self.island_size)
 
     def to_objects(self, flat: torch.Tensor) -> torch.Tensor:
-        """Island vectors (num_islands, N) -> padded per-object vectors (n, 3, K) (zeros on padding)."""
-        f = flat.reshape(-1)
-        out = torch.where(self.valid, f[self.flat_index.clamp(min=0)], torch.zeros((), dtype=flat.dtype))
+        """Island vectors (num_islands, N) -> padded per-object vectors (n, 3, K) (a new tensor; zeros on
+        padding)."""
+        out = flat.reshape(-1).index_select(0, self._gather).reshape(self.flat_index.shape)
+        if not self._all_valid:
+            out = torch.where(self._valid, out, torch.zeros((), dtype=flat.dtype))
         return out.reshape(self.flat_index.shape[0], 3, -1)
 
     def _block_index(self, rows: torch.Tensor, cols: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -205,13 +251,22 @@ class DofLayout:
         """Add object blocks (m, 3K, 3K) at (rows[m], cols[m]) (default: the diagonal) into island matrices
         (num_islands, N, N); padded rows/columns are dropped. Cross blocks must pair objects of one island."""
         n_isl, size = self.num_islands, self.island_size
+        if rows is None and self.one_island_per_object and self._all_valid:
+            # island o is object o with N = 3K in the same order: the matrices are the blocks themselves
+            # (``x + 0.0`` as the scatter into zeros below would give, fresh)
+            square = blocks.reshape(n_isl, size, size)
+            return square + 0.0 if out is None else out.reshape(n_isl, size, size).add_(square)
         out = torch.zeros(n_isl * size * size, dtype=blocks.dtype) if out is None else out.reshape(-1)
         if rows is None:  # the diagonal blocks: the same positions on every call
             if self._diagonal is None:
                 objects = torch.arange(self.flat_index.shape[0])
-                object.__setattr__(self, "_diagonal", self._block_index(objects, objects))
-            index, mask = self._diagonal
+                index, mask = self._block_index(objects, objects)
+                source = None if bool(mask.all()) else torch.nonzero(mask.reshape(-1))[:, 0]
+                object.__setattr__(self, "_diagonal", (index, source))
+            index, source = self._diagonal
+            values = blocks.reshape(-1) if source is None else blocks.reshape(-1).index_select(0, source)
         else:
             index, mask = self._block_index(rows, rows if cols is None else cols)
-        out.index_add_(0, index, blocks[mask])
+            values = blocks[mask]
+        out.index_add_(0, index, values)
         return out.reshape(n_isl, size, size)

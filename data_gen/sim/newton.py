@@ -62,26 +62,43 @@ class NewtonResult:
     counters: dict[str, int]
 
 
+_EYES: dict[tuple[int, torch.dtype], torch.Tensor] = {}
+
+
+def _eye(n: int, dtype: torch.dtype) -> torch.Tensor:
+    """A cached (n, n) identity (read only)."""
+    eye = _EYES.get((n, dtype))
+    if eye is None:
+        eye = _EYES[(n, dtype)] = torch.eye(n, dtype=dtype)
+    return eye
+
+
+def _direction(hess: torch.Tensor, grad: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """:func:`newton_direction`, with ``ok`` None when every matrix was positive definite (the common case:
+    no masking, one host sync)."""
+    hess = torch.add(hess, hess.transpose(1, 2)).mul_(0.5)
+    chol, info = torch.linalg.cholesky_ex(hess)
+    if not bool(info.any()):  # info: 0 where the factorisation succeeded
+        return torch.cholesky_solve(grad[:, :, None], chol)[:, :, 0].neg_(), None
+    bad = info != 0
+    ridge = 1e-10 * hess[bad].diagonal(dim1=1, dim2=2).abs().amax(dim=1)
+    eye = _eye(hess.shape[1], hess.dtype)
+    chol_r, info_r = torch.linalg.cholesky_ex(hess[bad] + ridge[:, None, None] * eye)
+    chol = chol.clone()
+    chol[bad] = chol_r
+    ok = torch.ones_like(bad)
+    ok[bad] = info_r == 0
+    safe = torch.where(ok[:, None, None], chol, eye)
+    dq = -torch.cholesky_solve(grad[:, :, None], safe)[:, :, 0]
+    return torch.where(ok[:, None], dq, torch.zeros((), dtype=dq.dtype)), ok
+
+
 def newton_direction(hess: torch.Tensor, grad: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Solve ``hess dq = -grad`` per island by Cholesky (with a 1e-10 relative ridge where needed).
 
     Returns dq (n_isl, N) and a (n_isl,) bool: True where the matrix was positive definite."""
-    hess = 0.5 * (hess + hess.transpose(1, 2))
-    chol, info = torch.linalg.cholesky_ex(hess)
-    bad = info != 0
-    if bool(bad.any()):
-        ridge = 1e-10 * hess[bad].diagonal(dim1=1, dim2=2).abs().amax(dim=1)
-        eye = torch.eye(hess.shape[1], dtype=hess.dtype)
-        chol_r, info_r = torch.linalg.cholesky_ex(hess[bad] + ridge[:, None, None] * eye)
-        chol = chol.clone()
-        chol[bad] = chol_r
-        ok = torch.ones_like(bad)
-        ok[bad] = info_r == 0
-    else:
-        ok = ~bad
-    safe = torch.where(ok[:, None, None], chol, torch.eye(hess.shape[1], dtype=hess.dtype))
-    dq = -torch.cholesky_solve(grad[:, :, None], safe)[:, :, 0]
-    return torch.where(ok[:, None], dq, torch.zeros((), dtype=dq.dtype)), ok
+    dq, ok = _direction(hess, grad)
+    return dq, torch.ones(dq.shape[0], dtype=torch.bool) if ok is None else ok
 
 
 def minimise(
@@ -108,9 +125,13 @@ def minimise(
          "line_search_extended", "trust_limited_steps", "unconverged_solves"), 0)  # fmt: skip
     n_isl = q0.shape[0]
     q = q0.clone()
+    threshold = settings.tolerance * scale  # an update of mass norm below this has converged
     active = torch.ones(n_isl, dtype=torch.bool)
+    all_active = True  # every island still active (known on the host: masks can be skipped)
     converged = torch.zeros(n_isl, dtype=torch.bool)
     iterations = torch.zeros(n_isl, dtype=torch.int64)
+    iterations_all_active = 0  # taken while every island was active (added to ``iterations`` at the end)
+    trust_limited = torch.zeros((), dtype=torch.int64)  # summed as a tensor, read once at the end
     carried: Evaluation | None = None  # derivatives at the accepted point, from the line search's first trial
     for _ in range(settings.iterations):
         if carried is None:
@@ -120,10 +141,10 @@ def minimise(
             ev, carried = carried, None
         if on_gradient is not None:
             on_gradient(ev.grad)
-        dq, ok = newton_direction(ev.hess, ev.grad)
-        failed = active & ~ok
-        if bool(failed.any()):  # a near-SPD elastic block made the matrix indefinite: project every block
-            counters["strict_projections"] += int(failed.sum())
+        dq, ok = _direction(ev.hess, ev.grad)
+        failed = None if ok is None else active & ~ok
+        if failed is not None and bool(failed.any()):  # a near-SPD elastic block made the matrix indefinite
+            counters["strict_projections"] += int(failed.sum())  # project every block of those islands
             strict = objective.evaluate(q, True, strict_islands=failed)
             counters["evaluations_with_derivatives"] += 1
             dq_s, ok_s = newton_direction(strict.hess[failed], strict.grad[failed])
@@ -136,21 +157,29 @@ def minimise(
             dq[failed] = dq_s
             ev.value[failed] = strict.value[failed]
             ev.grad[failed] = strict.grad[failed]
-        iterations += active.to(torch.int64)
-        dq = dq * active[:, None]
-        slope = (ev.grad * dq).sum(1)
+        if all_active:
+            iterations_all_active += 1
+        else:
+            iterations += active
+            dq = dq * active[:, None]
         motion = objective.point_motion(dq)
         alpha = torch.clamp(trust_m / motion.clamp(min=1e-300), max=1.0)
-        counters["trust_limited_steps"] += int((active & (alpha < 1.0)).sum())
+        whole = alpha >= 1.0
+        trust_limited += (alpha < 1.0 if all_active else active & (alpha < 1.0)).sum()
         # an update already below the tolerance is taken whole, without a search: the island has converged
-        small = active & (alpha >= 1.0) & (objective.mass_norm(dq) <= settings.tolerance * scale)
-        accepted = ~active | small  # islands that are done, or converging now, need no search
-        searches = 0 if bool(accepted.all()) else settings.line_search_steps + EXTRA_HALVINGS
+        mass = objective.mass_norm(dq)  # |dq|_M, also the step norm's factor below
+        small = whole & (mass <= threshold) if all_active else active & whole & (mass <= threshold)
+        accepted = small if all_active else ~active | small  # islands done, or converging now, need no search
+        all_accepted = bool(accepted.all())
+        searches = 0 if all_accepted else settings.line_search_steps + EXTRA_HALVINGS
+        slope = (ev.grad * dq).sum(1) if searches else None  # directional derivative, for the Armijo test
+        trial_q = None  # the point of the latest trial
         for trial_index in range(searches):
             # islands accepted earlier sit at their accepted alpha (their values are not looked at); the first
             # trial is evaluated with derivatives: when every island takes it, the next iteration starts there
             first = trial_index == 0
-            trial_ev = objective.evaluate(q + alpha[:, None] * dq, first)
+            trial_q = q + alpha[:, None] * dq
+            trial_ev = objective.evaluate(trial_q, first)
             trial = trial_ev.value
             counters["evaluations_with_derivatives" if first else "evaluations"] += 1
             if trial_index < settings.line_search_steps:
@@ -162,19 +191,36 @@ def minimise(
                 counters["line_search_extended"] += int(newly.sum())
             accepted = accepted | newly
             if bool(accepted.all()):
+                all_accepted = True
                 if first:
                     carried = trial_ev
                 break
             alpha = torch.where(accepted, alpha, 0.5 * alpha)
-        failed_ls = active & ~accepted
-        counters["line_search_failures"] += int(failed_ls.sum())
-        moving = active & accepted
-        q = q + (alpha * moving)[:, None] * dq
-        step_norm = alpha * objective.mass_norm(dq)
-        done = moving & ((step_norm <= settings.tolerance * scale) | small)
+        if all_accepted:  # no island failed its search: the moving islands are the active ones
+            failed_ls = None
+            moving = active
+            if trial_q is not None:  # the search stopped right after its trial at the final alpha (dq = 0 on
+                q = trial_q  # inactive islands): the accepted point is that trial's point
+            else:
+                q = q + (alpha if all_active else alpha * moving)[:, None] * dq
+        else:
+            failed_ls = active & ~accepted
+            counters["line_search_failures"] += int(failed_ls.sum())
+            moving = active & accepted
+            q = q + (alpha * moving)[:, None] * dq
+        converging = (alpha * mass <= threshold) | small
+        # every island moves when all are active and none failed its search
+        done = converging if all_active and failed_ls is None else moving & converging
         converged |= done
-        active = active & ~done & ~failed_ls
-        if not bool(active.any()):
+        if failed_ls is not None:
+            active = active & ~done & ~failed_ls
+        else:
+            active = ~done if all_active else active & ~done
+        num_active = int(active.sum())
+        if num_active == 0:
             break
+        all_active = num_active == n_isl
+    iterations += iterations_all_active
+    counters["trust_limited_steps"] += int(trust_limited)
     counters["unconverged_solves"] += int((~converged).sum())
     return NewtonResult(q, iterations, converged, counters)

@@ -96,12 +96,20 @@ class StepObjective(Objective):
 
     # -- sizes of the step
     def _per_island(self, per_object: torch.Tensor, reduce: str = "sum") -> torch.Tensor:
+        """Per-object values (n,) reduced per island (``sum`` or a ``scatter_reduce`` reduction that starts
+        from 0, such as ``amax`` of non-negative sizes)."""
+        if self.layout.one_island_per_object:  # island o is object o: 0 + x (sum) and max(0, x) (amax)
+            if reduce == "sum":
+                return per_object + 0.0
+            if reduce == "amax":
+                return per_object.clamp(min=0.0)
         out = torch.zeros(self.layout.num_islands, dtype=DTYPE)
         if reduce == "sum":
             return out.index_add_(0, self.layout.island, per_object)
         return out.scatter_reduce(0, self.layout.island, per_object, reduce=reduce, include_self=True)
 
     def _object_mass_norm2(self, dtm: torch.Tensor) -> torch.Tensor:
+        """Squared mass norm ``dtm^T M dtm`` per object (n,) of padded state changes ``dtm`` (n, 3, K)."""
         flat = dtm.reshape(dtm.shape[0], -1, 1)
         return (flat[:, :, 0] * (self.model.mass_matrix @ flat)[:, :, 0]).sum(1)
 
@@ -112,7 +120,9 @@ class StepObjective(Objective):
         return self._point_motion_objects(self.layout.to_objects(dq))
 
     def _point_motion_objects(self, dtm: torch.Tensor) -> torch.Tensor:
-        move = (self.model.sphere_b @ dtm.transpose(1, 2)).norm(dim=2) * self.model.sphere_valid
+        """Largest contact-sphere displacement (m) per island of padded changes ``dtm`` (n, 3, K)."""
+        # padded spheres have zero basis rows (Model.build): they do not move, no mask needed
+        move = torch.linalg.vector_norm(self.model.sphere_b @ dtm.transpose(1, 2), dim=2)
         return self._per_island(move.amax(dim=1), reduce="amax")
 
     def motion_scale(self) -> torch.Tensor:

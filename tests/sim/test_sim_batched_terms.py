@@ -192,3 +192,84 @@ def test_newton_reaches_each_islands_minimum_and_respects_the_trust_radius():
     assert torch.allclose(res.q[0], 0.25 * obj.c[0], atol=1e-14)
     assert torch.allclose(res.q[1], obj.c[1], atol=1e-14)
     assert res.counters["trust_limited_steps"] == 1
+
+
+def _reference_to_islands(layout: DofLayout, padded: torch.Tensor) -> torch.Tensor:
+    """The layout conversions by boolean masks (the definition the precomputed indices must reproduce)."""
+    out = torch.zeros(layout.num_islands * layout.island_size, dtype=padded.dtype)
+    mask = layout.flat_index >= 0
+    out[layout.flat_index[mask]] = padded.reshape(mask.shape)[mask]
+    return out.reshape(layout.num_islands, layout.island_size)
+
+
+def _reference_to_objects(layout: DofLayout, flat: torch.Tensor) -> torch.Tensor:
+    mask = layout.flat_index >= 0
+    out = flat.reshape(-1)[layout.flat_index.clamp(min=0)]
+    out = torch.where(mask, out, torch.zeros((), dtype=flat.dtype))
+    return out.reshape(layout.flat_index.shape[0], 3, -1)
+
+
+def _reference_assemble(layout: DofLayout, blocks: torch.Tensor) -> torch.Tensor:
+    n_isl, size = layout.num_islands, layout.island_size
+    out = torch.zeros(n_isl, size, size, dtype=blocks.dtype)
+    for o in range(layout.flat_index.shape[0]):
+        f = layout.flat_index[o]
+        mask = f >= 0
+        local = f[mask] - int(layout.island[o]) * size
+        out[int(layout.island[o]), local[:, None], local[None, :]] += blocks[o][mask][:, mask]
+    return out
+
+
+def test_layout_fast_paths_equal_the_masked_conversions_on_mixed_and_uniform_layouts():
+    gen = torch.Generator().manual_seed(11)
+    cases = [
+        ((1, 3, 2), (0, 1, 0)),  # padded columns and an unused tail in island 1
+        ((2, 2, 2), (0, 1, 2)),  # one island per object, nothing padded: the matrices are the blocks
+        ((2, 2, 2, 2), (0, 0, 1, 2)),  # no padded column, islands of different sizes
+        ((1, 3, 2), (0, 1, 2)),  # one island per object with padded columns
+        ((1, 1, 1), (0, 0, 0)),  # a single island
+    ]
+    for handles, islands in cases:
+        _, model = _model(handles)
+        layout = DofLayout.build(model.num_handles, torch.tensor(islands), model.columns)
+        assert layout.one_island_per_object == (islands == tuple(range(len(handles))))
+        k = model.columns
+        tm = torch.randn(len(handles), 3 * k, generator=gen, dtype=D) * layout.valid
+        tm = tm.reshape(len(handles), 3, k)
+        flat = layout.to_islands(tm)
+        assert torch.equal(flat, _reference_to_islands(layout, tm))
+        noise = torch.randn(flat.shape, generator=gen, dtype=D)
+        assert torch.equal(layout.to_objects(noise), _reference_to_objects(layout, noise))
+        assert torch.equal(layout.to_objects(flat), tm)
+        blocks = torch.randn(len(handles), 3 * k, 3 * k, generator=gen, dtype=D)
+        expected = _reference_assemble(layout, blocks)
+        assert torch.allclose(layout.assemble(blocks), expected, rtol=0, atol=1e-15)
+        assert torch.allclose(layout.assemble(blocks, out=expected.clone()), 2 * expected, rtol=0, atol=1e-14)
+
+
+class _Quartic(_Quadratic):
+    """Island 0 the quadratic of :class:`_Quadratic`; island 1 adds ``(q - c)_0^4``, which takes Newton
+    several more iterations: the islands stop at different iterations."""
+
+    def evaluate(self, q, derivatives, strict_islands=None):
+        ev = super().evaluate(q, derivatives, strict_islands)
+        r = (q - self.c)[1, 0]
+        ev.value[1] += r**4
+        if derivatives:
+            ev.grad[1, 0] += 4 * r**3
+            ev.hess[1, 0, 0] += 12 * r**2
+        return ev
+
+
+def test_newton_islands_converge_at_their_own_iteration_and_stop_moving():
+    obj = _Quartic()
+    q0 = torch.zeros(2, 2, dtype=D)
+    trust = torch.tensor([10.0, 10.0], dtype=D)
+    res = minimise(obj, q0, torch.ones(2, dtype=D), trust, NewtonSettings(50, 1e-10, 8))
+    assert bool(res.converged.all()) and res.counters["unconverged_solves"] == 0
+    assert res.iterations[0] == 2 and res.iterations[1] > 3  # island 0 stopped while island 1 went on
+    assert torch.allclose(res.q[0], obj.c[0], atol=1e-12)
+    assert torch.allclose(res.q[1], obj.c[1], atol=1e-6)
+    grad = obj.evaluate(res.q, True).grad
+    assert float(grad[1].abs().max()) < 1e-8
+    assert res.counters["trust_limited_steps"] == 0 and res.counters["line_search_failures"] == 0
