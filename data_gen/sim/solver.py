@@ -38,8 +38,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from data_gen.sim.contact import PairFinder, pair_contact, static_contact
+from data_gen.sim.contact import PairFinder, pair_contact
 from data_gen.sim.contact_points import ContactPoints
+from data_gen.sim.energy import point_terms
 from data_gen.sim.energy.pair_contact import FROZEN, PairSet
 from data_gen.sim.energy.scene_sdf import SceneDistance
 from data_gen.sim.model import DofLayout, Model, padded_index
@@ -235,6 +236,8 @@ class ImplicitEulerSolver:
         self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
         self._groups: OrderedDict[tuple[tuple[int, ...], ...], _GroupSetup] = OrderedDict()
         self._pair_table_cache: tuple[tuple[float, bytes], tuple[np.ndarray, np.ndarray]] | None = None
+        # per object: (qdot tensor, its version, sphere velocities (n, 3) m/s, fastest speed m/s)
+        self._velocity_cache: list[tuple[torch.Tensor, int, torch.Tensor, float] | None] = [None] * len(bodies)
         self.counters: dict[str, int] = dict.fromkeys(
             (
                 "evaluations",
@@ -269,7 +272,7 @@ class ImplicitEulerSolver:
         self.h = self.dt
         t0 = time.perf_counter()
         positions = [b.contact_positions() for b in self.bodies]
-        speeds = [None if b.asleep else self._max_speed(b) for b in self.bodies]
+        speeds = [None if b.asleep else self._max_speed(k) for k, b in enumerate(self.bodies)]
         pairs = self._candidate_pairs(positions, moving=True)
         self.timings["broad_phase"] += time.perf_counter() - t0
         stats.candidate_pairs = len(pairs)
@@ -304,9 +307,22 @@ class ImplicitEulerSolver:
         self.step_index += 1
         return stats
 
-    def _max_speed(self, body: SimBody) -> float:
-        """Fastest contact sphere of an object, m/s."""
-        return float(body.contact.velocities(body.qdot).norm(dim=1).max())
+    def _sphere_velocities(self, k: int) -> tuple[torch.Tensor, float]:
+        """Contact sphere velocities (n, 3) m/s of object k at its current rate and the fastest one's
+        speed, m/s; kept while its ``qdot`` is the same tensor, unmodified (sleep checks, the next step's
+        broad phase and sub-steps ask again)."""
+        b = self.bodies[k]
+        cached = self._velocity_cache[k]
+        if cached is not None and cached[0] is b.qdot and cached[1] == b.qdot._version:
+            return cached[2], cached[3]
+        velocity = b.contact.velocities(b.qdot)
+        speed = float(velocity.norm(dim=1).max())
+        self._velocity_cache[k] = (b.qdot, b.qdot._version, velocity, speed)
+        return velocity, speed
+
+    def _max_speed(self, k: int) -> float:
+        """Fastest contact sphere of object k, m/s."""
+        return self._sphere_velocities(k)[1]
 
     def _island_substeps(
         self,
@@ -325,7 +341,7 @@ class ImplicitEulerSolver:
         query the scene together, once."""
         paired = set(object_pairs.ravel().tolist())
         reach = {
-            k: (self._max_speed(self.bodies[k]) if speeds[k] is None else speeds[k]) * self.dt
+            k: (self._max_speed(k) if speeds[k] is None else speeds[k]) * self.dt
             for island in islands
             for k in island
         }
@@ -375,9 +391,16 @@ class ImplicitEulerSolver:
         grav = sum(b.model.gravity_energy(b.q, self.gravity) for b in self.bodies)
         positions = [b.contact_positions() for b in self.bodies]
         con = 0.0
-        for k, b in enumerate(self.bodies):
-            pc, _, _ = static_contact(positions[k], b.radius_m, _scalar(self.stiffness(k)), self.scene)
-            con += pc.energy
+        if self.bodies:  # scene contact: one query for all spheres, summed object by object
+            sdf, normal = self.scene.query(torch.cat(positions))
+            stiffness = torch.cat(
+                [torch.full((b.contact.num_points,), self.stiffness(k), dtype=DTYPE) for k, b in enumerate(self.bodies)]
+            )
+            energy, _, _ = point_terms.penalty(
+                self.radii_all - torch.from_numpy(sdf), torch.from_numpy(normal), stiffness, False
+            )
+            for part in energy.split([b.contact.num_points for b in self.bodies]):  # loop over objects
+                con += float(part.sum())
         pairs = self._candidate_pairs(positions, moving=False)
         if len(pairs):
             oi, oj = self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]
@@ -405,8 +428,8 @@ class ImplicitEulerSolver:
         together.  1.5 x that (velocities change within the step) plus what gravity adds."""
         velocity = torch.cat(
             [
-                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if b.asleep else b.contact.velocities(b.qdot)
-                for b in self.bodies
+                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if b.asleep else self._sphere_velocities(k)[0]
+                for k, b in enumerate(self.bodies)
             ]
         )
         relative_speed = (velocity - velocity.mean(0)).norm(dim=1).numpy()
@@ -460,7 +483,7 @@ class ImplicitEulerSolver:
         for island in islands:
             for k in island:
                 b = self.bodies[k]
-                speed = float(b.contact.velocities(b.qdot).norm(dim=1).max())
+                speed = self._max_speed(k)
                 if threshold > 0 and speed < threshold and supported[k]:
                     b.slow_steps += 1
                 else:
@@ -811,7 +834,3 @@ class ImplicitEulerSolver:
             total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
             key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
             stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
-
-
-def _scalar(value: float) -> torch.Tensor:
-    return torch.tensor(value, dtype=DTYPE)
