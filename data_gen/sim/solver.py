@@ -776,58 +776,62 @@ class ImplicitEulerSolver:
         forces are added in the order of a loop over the object pairs, then their point pairs.  Per
         object pair the step statistics get the total force (on the smaller id), the force-weighted
         position and the normal (from the smaller id's side)."""
-        mag = f_i.norm(dim=1)
-        act = mag > 0
-        if not bool(act.any()):
+        mag_t = f_i.norm(dim=1)  # (the partner strengths: the same norm as the scene forces')
+        mag = mag_t.numpy()
+        rows = np.flatnonzero(mag > 0)
+        if not len(rows):
             return
-        rows = torch.nonzero(act)[:, 0]
-        rows_np = rows.numpy()
-        oi, oj = obj_i[rows_np], obj_j[rows_np]
+        oi, oj = obj_i[rows], obj_j[rows]
         n = len(self.bodies)
         keys, group = np.unique(oi * n + oj, return_inverse=True)  # object pairs (a, c), sorted
         group = group.reshape(-1)
         obj_a, obj_c = keys // n, keys % n
-        fa, m = f_i[rows], mag[rows]
+        fa, m = f_i.numpy()[rows], mag[rows]
 
-        # per-sphere records of the objects involved, concatenated
+        # per-sphere records of the objects involved, concatenated (numpy views of their tensors)
         involved = np.unique(np.concatenate([obj_a, obj_c]))
         counts = [self.bodies[o].contact.num_points for o in involved]
         first = np.zeros(n, dtype=np.int64)
         first[involved] = np.cumsum([0] + counts[:-1])
         asleep = np.array([b.asleep for b in self.bodies])
-        dest = torch.from_numpy(np.concatenate([first[oi] + loc_i[rows_np], first[oj] + loc_j[rows_np]]))
-        rank = torch.from_numpy(np.concatenate([2 * group, 2 * group + 1]))  # object pair, then side i/j
-        order = torch.argsort(rank, stable=True)
-        scale_j = torch.from_numpy(np.where(asleep[oj], self.h / self.dt, 1.0))
-        source = torch.cat([fa, -fa * scale_j[:, None]])
-        force = torch.cat([self.bodies[o].contact_force_n for o in involved])
-        force.index_add_(0, dest[order], source[order])
-        strength = torch.cat([self.bodies[o].partner_strength_n for o in involved])
-        partner = torch.cat([self.bodies[o].contact_partner for o in involved])
-        m2 = torch.cat([m, m])
-        best = torch.zeros_like(strength).scatter_reduce_(0, dest, m2, reduce="amax", include_self=True)
+        dest = np.concatenate([first[oi] + loc_i[rows], first[oj] + loc_j[rows]])
+        rank = np.concatenate([2 * group, 2 * group + 1])  # object pair, then side i before side j
+        order = np.argsort(rank, kind="stable")
+        scale_j = np.where(asleep[oj], self.h / self.dt, 1.0)
+        force = np.concatenate([self.bodies[o].contact_force_n.numpy() for o in involved])
+        np.add.at(force, dest[order], np.concatenate([fa, -fa * scale_j[:, None]])[order])  # in that order
+        strength = np.concatenate([self.bodies[o].partner_strength_n.numpy() for o in involved])
+        partner = np.concatenate([self.bodies[o].contact_partner.numpy() for o in involved])
+        m2 = np.concatenate([m, m])
+        best = np.zeros_like(strength)
+        np.maximum.at(best, dest, m2)
         wins = (m2 == best[dest]) & (m2 > strength[dest])
         none = 2 * len(keys)
-        winner = torch.full_like(partner, none).scatter_reduce_(
-            0, dest[wins], rank[wins], reduce="amin", include_self=True
-        )
+        winner = np.full(len(partner), none, dtype=np.int64)
+        np.minimum.at(winner, dest[wins], rank[wins])
         # partner id per rank: side i (2 g) is pushed by c, side j (2 g + 1) by a
-        partner_of_rank = torch.from_numpy(np.stack([self._object_id[obj_c], self._object_id[obj_a]], 1).reshape(-1))
+        partner_of_rank = np.stack([self._object_id[obj_c], self._object_id[obj_a]], 1).reshape(-1)
         taken = winner < none
-        partner = torch.where(taken, partner_of_rank[winner.clamp(max=none - 1)], partner)
-        strength = torch.maximum(best, strength)
+        partner = np.where(taken, partner_of_rank[np.minimum(winner, none - 1)], partner)
+        strength = np.maximum(best, strength)
+        ends = np.cumsum(counts)[:-1]
         for o, f_o, s_o, p_o in zip(
-            involved, force.split(counts), strength.split(counts), partner.split(counts)
+            involved, np.split(force, ends), np.split(strength, ends), np.split(partner, ends)
         ):  # loop over objects
             b = self.bodies[o]
-            b.contact_force_n, b.partner_strength_n, b.contact_partner = f_o, s_o, p_o
+            b.contact_force_n = torch.from_numpy(f_o)
+            b.partner_strength_n = torch.from_numpy(s_o)
+            b.contact_partner = torch.from_numpy(p_o)
         supported[obj_a] = True
         supported[obj_c[asleep[obj_c]]] = True
 
         # per object pair: total force on a (N), force-weighted contact position (m) and normal c -> a
-        group_t = torch.from_numpy(group)
-        weighted = torch.cat([fa, m[:, None] * 0.5 * (xi[rows] + xj[rows]), m[:, None] * normal_ji[rows], m[:, None]], 1)
-        sums = torch.zeros(len(keys), 10, dtype=DTYPE).index_add_(0, group_t, weighted).numpy()
+        weighted = np.concatenate(
+            [fa, m[:, None] * 0.5 * (xi.numpy()[rows] + xj.numpy()[rows]), m[:, None] * normal_ji.numpy()[rows], m[:, None]],
+            axis=1,
+        )
+        sums = np.zeros((len(keys), 10))
+        np.add.at(sums, group, weighted)
         total, pos, nrm = sums[:, 0:3], sums[:, 3:6] / sums[:, 9:10], sums[:, 6:9]
         id_a, id_c = self._object_id[obj_a], self._object_id[obj_c]
         for g in range(len(keys)):  # loop over object pairs: events are keyed (smaller id, larger id)
