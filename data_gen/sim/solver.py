@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import torch
@@ -63,9 +63,11 @@ _ARMIJO_C = 1e-4
 # After the preset's Armijo halvings fail, keep halving up to this many more times for any decrease
 # (a failed search leaves the island at its last accepted iterate).
 _EXTRA_HALVINGS = 20
-# Solves set up for this many distinct groups of islands are kept (selected model rows, DOF layout):
-# the same islands are solved in every sub-step and, while the scene settles, step after step.
+# Solves set up for at most this many distinct groups of islands are kept (selected model rows, DOF
+# layout), holding at most this many times the memory of the whole model: the same islands are solved in
+# every sub-step and, while the scene settles, step after step.
 _GROUP_CACHE_SIZE = 64
+_GROUP_CACHE_MODELS = 8
 
 
 class SimulationError(RuntimeError):
@@ -198,6 +200,11 @@ class _GroupSetup:
     padded: torch.Tensor
     sizes: list[int]
 
+    @property
+    def nbytes(self) -> int:
+        """Memory of the selected model rows, bytes."""
+        return _model_bytes(self.model)
+
 
 class ImplicitEulerSolver:
     """Advances a list of :class:`SimBody` by implicit Euler steps of ``dt_s`` seconds."""
@@ -235,6 +242,8 @@ class ImplicitEulerSolver:
         self._median_radius_m = [float(b.radius_m.median()) for b in bodies]
         self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
         self._groups: OrderedDict[tuple[tuple[int, ...], ...], _GroupSetup] = OrderedDict()
+        self._groups_bytes = 0
+        self._groups_max_bytes = _GROUP_CACHE_MODELS * _model_bytes(self.model)
         self._pair_table_cache: tuple[tuple[float, bytes], tuple[np.ndarray, np.ndarray]] | None = None
         # per object: (qdot tensor, its version, sphere velocities (n, 3) m/s, fastest speed m/s)
         self._velocity_cache: list[tuple[torch.Tensor, int, torch.Tensor, float] | None] = [None] * len(bodies)
@@ -570,8 +579,11 @@ class ImplicitEulerSolver:
             sizes=[int(index.shape[0]) for index in padded],
         )
         self._groups[key] = setup
-        if len(self._groups) > _GROUP_CACHE_SIZE:
-            self._groups.popitem(last=False)
+        self._groups_bytes += setup.nbytes
+        while len(self._groups) > 1 and (
+            len(self._groups) > _GROUP_CACHE_SIZE or self._groups_bytes > self._groups_max_bytes
+        ):  # drop the least recently used
+            self._groups_bytes -= self._groups.popitem(last=False)[1].nbytes
         return setup
 
     def _padded_states(self, setup: _GroupSetup) -> tuple[torch.Tensor, torch.Tensor]:
@@ -838,3 +850,8 @@ class ImplicitEulerSolver:
             total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
             key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
             stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
+
+
+def _model_bytes(model: Model) -> int:
+    """Memory of a model's tensors, bytes."""
+    return sum(getattr(model, f.name).nbytes for f in fields(model))

@@ -1,4 +1,5 @@
-"""The solver's vectorised bookkeeping and the grouped broad phase equal their plain definitions."""
+"""The solver's vectorised bookkeeping, its cached solve set-up and the grouped broad phase equal their plain
+definitions."""
 
 from types import SimpleNamespace
 
@@ -7,7 +8,10 @@ import pytest
 import torch
 
 from data_gen.sim.contact import PairFinder
-from data_gen.sim.solver import NO_PARTNER, ImplicitEulerSolver, StepStats
+from data_gen.sim.presets import load_preset
+from data_gen.sim.solver import NO_PARTNER, ImplicitEulerSolver, SimBody, StepStats
+from data_gen.sim.static_scene import StaticScene
+from tests.sim.test_sim_batched_terms import _object
 
 
 def brute_force_pairs(points, object_ids, radii, margin, point_margins):
@@ -160,3 +164,51 @@ def test_pair_bookkeeping_without_active_pairs_changes_nothing():
     assert not stats.pair_forces and not supported.any()
     for b, f in zip(solver.bodies, before, strict=True):
         assert torch.equal(b.contact_force_n, f)
+
+
+# ---------------------------------------------------------------- solve set-up
+def _solver(handles=(1, 3, 2, 1)):
+    """A solver over small random objects (1..3 handles) at random states."""
+    gen = torch.Generator().manual_seed(11)
+    bodies = []
+    for k, h in enumerate(handles):
+        model, contact = _object(h, seed=k)
+        q = 0.05 * torch.randn(model.num_dofs, generator=gen, dtype=torch.float64)
+        qdot = torch.randn(model.num_dofs, generator=gen, dtype=torch.float64)
+        bodies.append(SimBody(k + 1, f"o{k}", model, contact, 0.5, q, qdot))
+    return ImplicitEulerSolver(bodies, StaticScene(), np.array([0.0, 0.0, -9.81]), load_preset("draft"), 0.01)
+
+
+def test_solve_setup_gathers_the_states_of_each_object_and_is_reused():
+    solver = _solver()
+    islands = [[0, 2], [1], [3]]
+    setup = solver._group_setup(islands)
+    assert solver._group_setup([list(i) for i in islands]) is setup  # the same islands: the same set-up
+    tm, tmdot = solver._padded_states(setup)
+    k = solver.model.columns
+    for slot, o in enumerate(setup.objects):  # the per-object reference: each q at its padded positions
+        ref, ref_dot = torch.zeros(3 * k, dtype=torch.float64), torch.zeros(3 * k, dtype=torch.float64)
+        ref[solver._padded_index[o]] = solver.bodies[o].q
+        ref_dot[solver._padded_index[o]] = solver.bodies[o].qdot
+        assert torch.equal(tm[slot].reshape(-1), ref) and torch.equal(tmdot[slot].reshape(-1), ref_dot)
+    assert setup.objects == [0, 2, 1, 3] and list(setup.slot_of) == [0, 2, 1, 3]
+    assert torch.equal(setup.layout.island, torch.tensor([0, 0, 1, 2]))
+    assert torch.equal(setup.model.num_handles, solver.model.num_handles[[0, 2, 1, 3]])
+    # least recently used set-ups are dropped beyond the memory bound
+    solver._groups_max_bytes = 2 * setup.nbytes
+    for groups in ([[0]], [[1]], [[2]], [[3]], [[0, 1]]):
+        solver._group_setup(groups)
+        assert len(solver._groups) >= 1 and solver._groups_bytes <= max(solver._groups_max_bytes, setup.nbytes)
+    assert tuple(map(tuple, islands)) not in solver._groups
+
+
+def test_object_pairs_are_the_sorted_distinct_pairs_of_candidates():
+    solver = _solver()
+    rng = np.random.default_rng(2)
+    n = len(solver.point_object)
+    i = rng.integers(0, n, 200)
+    j = rng.integers(0, n, 200)
+    keep = solver.point_object[i] < solver.point_object[j]
+    pairs = np.stack([i[keep], j[keep]], 1)
+    np.testing.assert_array_equal(solver._object_pairs(pairs), np.unique(solver.point_object[pairs], axis=0))
+    assert solver._object_pairs(np.zeros((0, 2), dtype=np.int64)).shape == (0, 2)
