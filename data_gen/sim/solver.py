@@ -240,6 +240,7 @@ class ImplicitEulerSolver:
         self.scene_distance = SceneDistance(scene)
         self._padded_index = [padded_index(b.model.num_handles, self.model.columns) for b in bodies]
         self._median_radius_m = [float(b.radius_m.median()) for b in bodies]
+        self._gravity_m_s2 = float(self.gravity.norm())
         self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
         self._groups: OrderedDict[tuple[tuple[int, ...], ...], _GroupSetup] = OrderedDict()
         self._groups_bytes = 0
@@ -442,7 +443,7 @@ class ImplicitEulerSolver:
             ]
         )
         relative_speed = (velocity - velocity.mean(0)).norm(dim=1).numpy()
-        return 1.5 * relative_speed * h + float(self.gravity.norm()) * h**2
+        return 1.5 * relative_speed * h + self._gravity_m_s2 * h**2
 
     def _object_pairs(self, pairs: np.ndarray) -> np.ndarray:
         """The distinct object pairs (a, c) of candidate point pairs, sorted lexicographically (a < c)."""
@@ -546,14 +547,13 @@ class ImplicitEulerSolver:
         stiffness, friction = self._pair_tables()
         k = torch.from_numpy(stiffness[oi, oj])
         mu = torch.from_numpy(friction[oi, oj])
-        rs = self.radii_all[gi] + self.radii_all[gj]
-        x0i, x0j = x_all[gi], x_all[gj]
+        gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
+        rs = self.radii_all[gi_t] + self.radii_all[gj_t]
+        x0i, x0j = x_all[gi_t], x_all[gj_t]
         start = pair_contact(x0i, x0j, rs, k) if len(gi) else None
         lam = (k * start.depth_m.clamp(min=0.0)) if start is not None else torch.zeros(0, dtype=DTYPE)
         n0 = start.normal_ji if start is not None else torch.zeros(0, 3, dtype=DTYPE)
-        return _PairSet(
-            oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, torch.from_numpy(gi), torch.from_numpy(gj)
-        )
+        return _PairSet(oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, gi_t, gj_t)
 
     # ------------------------------------------------------------------ Newton on a group of islands
     def _group_setup(self, islands: list[list[int]]) -> _GroupSetup:
