@@ -3,8 +3,9 @@
 * Static scene: sphere i (centre x_i, radius r_i) penetrates by ``d_i = r_i - sdf(x_i)``; the penalty
   energy is ``k/2 d_i^2`` for ``d_i > 0`` (C1, Gauss-Newton Hessian ``k n n^T``).
 * Object-object: candidate pairs come from a ``wp.HashGrid`` over all cubature points, rebuilt every
-  step; same-object pairs are skipped; pair (i, j) penetrates by ``d = r_i + r_j - |x_i - x_j|`` with
-  energy ``k/2 d^2`` (Hessian ``k n n^T``, the negative curvature term dropped so it stays PSD).
+  step and grouped by object (a sphere visits only other objects' spheres); pair (i, j) penetrates by
+  ``d = r_i + r_j - |x_i - x_j|`` with energy ``k/2 d^2`` (Hessian ``k n n^T``, the negative curvature
+  term dropped so it stays PSD).
 * Friction: lagged, smoothed Coulomb.  The normal force ``lam`` and the tangent plane are frozen at the
   start of the step; with tangential slip ``u`` (m) over the step the energy is ``mu lam f(|u|)``,
   ``f(s) = s^2 / (2 eps)`` for ``s < eps`` and ``s - eps/2`` beyond, ``eps = v_eps dt`` (m).
@@ -79,7 +80,10 @@ def _candidate_pairs_kernel(
     object_ids: wp.array(dtype=wp.int32),
     radii: wp.array(dtype=wp.float64),
     point_margins: wp.array(dtype=wp.float64),
-    query_radius: wp.float64,
+    box_lo: wp.array(dtype=wp.vec3d),
+    box_hi: wp.array(dtype=wp.vec3d),
+    object_reach: wp.array(dtype=wp.float64),
+    ordered: int,
     margin: wp.float64,
     capacity: int,
     count: wp.array(dtype=wp.int32),
@@ -87,25 +91,102 @@ def _candidate_pairs_kernel(
 ):
     i = wp.tid()
     p = points[i]
-    query = wp.hash_grid_query(grid, p, query_radius)
-    j = int(0)
-    while wp.hash_grid_query_next(query, j):
-        if j > i and object_ids[j] != object_ids[i]:
-            if wp.length(points[j] - p) < radii[i] + radii[j] + margin + point_margins[i] + point_margins[j]:
-                slot = wp.atomic_add(count, 0, 1)
-                if slot < capacity:
-                    pairs[slot, 0] = i
-                    pairs[slot, 1] = j
+    a = object_ids[i]
+    own = radii[i] + margin + point_margins[i]
+    first = int(0)
+    if ordered != 0:  # object ids ascend with the point index: every j > i on another object has a larger id
+        first = a + 1
+    for c in range(first, box_lo.shape[0]):
+        if c == a:
+            continue
+        # a partner j on object c is closer than own + radii[j] + point_margins[j] <= own + object_reach[c]
+        # (grown by a relative 1e-9 against round-off)
+        r = (own + object_reach[c]) * wp.float64(1.000000001)
+        lo = box_lo[c]
+        hi = box_hi[c]
+        if p[0] < lo[0] - r or p[0] > hi[0] + r or p[1] < lo[1] - r or p[1] > hi[1] + r:
+            continue
+        if p[2] < lo[2] - r or p[2] > hi[2] + r:
+            continue
+        query = wp.hash_grid_query(grid, p, r, c)  # object c's points only
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            if j > i:
+                if wp.length(points[j] - p) < radii[i] + radii[j] + margin + point_margins[i] + point_margins[j]:
+                    slot = wp.atomic_add(count, 0, 1)
+                    if slot < capacity:
+                        pairs[slot, 0] = i
+                        pairs[slot, 1] = j
+
+
+@dataclass(frozen=True)
+class _ObjectTable:
+    """What :class:`PairFinder` derives from the object ids and radii (reused while they stay the same).
+
+    Attributes:
+        object_ids, radii_m: the arrays as passed (copies).
+        dense: (n,) object index 0..m-1 per point on the device (int32, the grid's groups).
+        radii: (n,) radii on the device, m.
+        ordered: whether ``dense`` ascends with the point index.
+        order: (n,) the points sorted by object (stable); starts: (m,) where each object starts in it.
+    """
+
+    object_ids: np.ndarray
+    radii_m: np.ndarray
+    dense: wp.array
+    radii: wp.array
+    ordered: bool
+    order: np.ndarray
+    starts: np.ndarray
+
+    def matches(self, object_ids: np.ndarray, radii_m: np.ndarray) -> bool:
+        return (
+            self.object_ids.shape == object_ids.shape
+            and np.array_equal(self.object_ids, object_ids)
+            and np.array_equal(self.radii_m, radii_m)
+        )
+
+    def per_object(self, values: np.ndarray, reduce: np.ufunc) -> np.ndarray:
+        """``reduce`` (np.minimum or np.maximum) of per-point ``values`` (n, ...) over each object's points."""
+        return reduce.reduceat(values if self.ordered else values[self.order], self.starts, axis=0)
 
 
 class PairFinder:
-    """Broad phase over all cubature spheres with a warp hash grid (rebuilt on every call)."""
+    """Broad phase over all cubature spheres with a warp hash grid (rebuilt on every call).
+
+    The grid is grouped by object: a sphere queries only the objects whose bounding box, grown by its reach,
+    it lies in, and visits only their spheres, never its own object's; its query radius is its own radius and
+    margins plus the largest radius and margin of that object (not of all spheres).  The object ids and radii
+    are uploaded again only when they change (a solver passes the same arrays every step).
+    """
 
     def __init__(self, device: str = "cpu", grid_dim: int = 64) -> None:
         self.device = device
         wp.init()
         self.grid = wp.HashGrid(grid_dim, grid_dim, grid_dim, device=device, dtype=wp.float64)
         self.capacity = 1024
+        self._count = wp.zeros(1, dtype=wp.int32, device=device)
+        self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=device)
+        self._objects: _ObjectTable | None = None
+
+    def _object_table(self, object_ids: np.ndarray, radii_m: np.ndarray) -> _ObjectTable:
+        if self._objects is not None and self._objects.matches(object_ids, radii_m):
+            return self._objects
+        _, dense = np.unique(object_ids, return_inverse=True)
+        dense = dense.reshape(-1).astype(np.int32)
+        ordered = bool(np.all(dense[1:] >= dense[:-1]))
+        order = np.arange(len(dense)) if ordered else np.argsort(dense, kind="stable")
+        radii = np.asarray(radii_m, dtype=np.float64)
+        self._objects = _ObjectTable(
+            np.array(object_ids, copy=True),
+            radii.copy(),
+            wp.array(dense, dtype=wp.int32, device=self.device),
+            wp.array(radii, dtype=wp.float64, device=self.device),
+            ordered,
+            order,
+            np.flatnonzero(np.r_[True, np.diff(dense[order]) != 0]),
+        )
+        return self._objects
 
     def find(
         self,
@@ -121,41 +202,45 @@ class PairFinder:
         The result is sorted lexicographically, so it is deterministic on every device.
         """
         n = points_m.shape[0]
-        if n == 0 or len(np.unique(object_ids)) < 2:
+        if n == 0 or np.min(object_ids) == np.max(object_ids):  # fewer than two objects
             return np.zeros((0, 2), dtype=np.int64)
         extra = np.zeros(n) if point_margins_m is None else np.asarray(point_margins_m, dtype=np.float64)
         query_radius = 2.0 * float(radii_m.max()) + margin_m + 2.0 * float(extra.max())
-        pts = wp.array(np.ascontiguousarray(points_m, dtype=np.float64), dtype=wp.vec3d, device=self.device)
-        self.grid.build(pts, query_radius)
-        ids = wp.array(object_ids.astype(np.int32), dtype=wp.int32, device=self.device)
-        rad = wp.array(radii_m.astype(np.float64), dtype=wp.float64, device=self.device)
-        pm = wp.array(extra, dtype=wp.float64, device=self.device)
+        objects = self._object_table(object_ids, radii_m)
+        x = np.ascontiguousarray(points_m, dtype=np.float64)
+        pts = wp.array(x, dtype=wp.vec3d, device=self.device)
+        self.grid.build(pts, query_radius, groups=objects.dense)  # cells as wide as the largest query
+        lo = wp.array(objects.per_object(x, np.minimum), dtype=wp.vec3d, device=self.device)  # bounding boxes
+        hi = wp.array(objects.per_object(x, np.maximum), dtype=wp.vec3d, device=self.device)
+        reach = objects.per_object(objects.radii_m + extra, np.maximum)  # (m,) largest radius + margin, m
         while True:
-            count = wp.zeros(1, dtype=wp.int32, device=self.device)
-            pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=self.device)
+            self._count.zero_()
             wp.launch(
                 _candidate_pairs_kernel,
                 dim=n,
                 inputs=[
                     self.grid.id,
                     pts,
-                    ids,
-                    rad,
-                    pm,
-                    wp.float64(query_radius),
+                    objects.dense,
+                    objects.radii,
+                    wp.array(extra, dtype=wp.float64, device=self.device),
+                    lo,
+                    hi,
+                    wp.array(reach, dtype=wp.float64, device=self.device),
+                    int(objects.ordered),
                     wp.float64(margin_m),
                     self.capacity,
                 ],
-                outputs=[count, pairs],
+                outputs=[self._count, self._pairs],
                 device=self.device,
             )
-            found = int(count.numpy()[0])
+            found = int(self._count.numpy()[0])
             if found <= self.capacity:
                 break
             self.capacity = int(2 ** np.ceil(np.log2(found)))
-        out = pairs.numpy()[:found].astype(np.int64)
-        order = np.lexsort((out[:, 1], out[:, 0]))
-        return out[order]
+            self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=self.device)
+        out = self._pairs.numpy()[:found].astype(np.int64)
+        return out[np.lexsort((out[:, 1], out[:, 0]))]
 
 
 @dataclass

@@ -32,13 +32,15 @@ forces held); it wakes when an object moving faster than that speed comes into c
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from collections import OrderedDict
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import torch
 
-from data_gen.sim.contact import PairFinder, pair_contact, static_contact
+from data_gen.sim.contact import PairFinder, pair_contact
 from data_gen.sim.contact_points import ContactPoints
+from data_gen.sim.energy import point_terms
 from data_gen.sim.energy.pair_contact import FROZEN, PairSet
 from data_gen.sim.energy.scene_sdf import SceneDistance
 from data_gen.sim.model import DofLayout, Model, padded_index
@@ -61,6 +63,11 @@ _ARMIJO_C = 1e-4
 # After the preset's Armijo halvings fail, keep halving up to this many more times for any decrease
 # (a failed search leaves the island at its last accepted iterate).
 _EXTRA_HALVINGS = 20
+# Solves set up for at most this many distinct groups of islands are kept (selected model rows, DOF
+# layout), holding at most this many times the memory of the whole model: the same islands are solved in
+# every sub-step and, while the scene settles, step after step.
+_GROUP_CACHE_SIZE = 64
+_GROUP_CACHE_MODELS = 8
 
 
 class SimulationError(RuntimeError):
@@ -173,6 +180,32 @@ class _PairSet:
     global_j: torch.Tensor
 
 
+@dataclass(frozen=True)
+class _GroupSetup:
+    """What a solve of some islands needs besides the states; it depends only on the islands.
+
+    Attributes:
+        objects: body indices in solve order (island by island).
+        slot_of: (num bodies,) solve slot of each body, -1 if not solved.
+        model: the objects' rows of the solver's :class:`Model`; layout: their :class:`DofLayout`.
+        padded: (sum 12 H,) positions of the objects' concatenated unpadded q-orderings in the flattened
+            padded (n, 3, K) states.
+        sizes: 12 H per object (its q length).
+    """
+
+    objects: list[int]
+    slot_of: np.ndarray
+    model: Model
+    layout: DofLayout
+    padded: torch.Tensor
+    sizes: list[int]
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the selected model rows, bytes."""
+        return _model_bytes(self.model)
+
+
 class ImplicitEulerSolver:
     """Advances a list of :class:`SimBody` by implicit Euler steps of ``dt_s`` seconds."""
 
@@ -206,6 +239,15 @@ class ImplicitEulerSolver:
         )
         self.scene_distance = SceneDistance(scene)
         self._padded_index = [padded_index(b.model.num_handles, self.model.columns) for b in bodies]
+        self._median_radius_m = [float(b.radius_m.median()) for b in bodies]
+        self._gravity_m_s2 = float(self.gravity.norm())
+        self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
+        self._groups: OrderedDict[tuple[tuple[int, ...], ...], _GroupSetup] = OrderedDict()
+        self._groups_bytes = 0
+        self._groups_max_bytes = _GROUP_CACHE_MODELS * _model_bytes(self.model)
+        self._pair_table_cache: tuple[tuple[float, bytes], tuple[np.ndarray, np.ndarray]] | None = None
+        # per object: (qdot tensor, its version, sphere velocities (n, 3) m/s, fastest speed m/s)
+        self._velocity_cache: list[tuple[torch.Tensor, int, torch.Tensor, float] | None] = [None] * len(bodies)
         self.counters: dict[str, int] = dict.fromkeys(
             (
                 "evaluations",
@@ -240,15 +282,13 @@ class ImplicitEulerSolver:
         self.h = self.dt
         t0 = time.perf_counter()
         positions = [b.contact_positions() for b in self.bodies]
-        speeds = [
-            float(b.contact.velocities(b.qdot).norm(dim=1).max()) if not b.asleep else 0.0
-            for b in self.bodies
-        ]
+        speeds = [None if b.asleep else self._max_speed(k) for k, b in enumerate(self.bodies)]
         pairs = self._candidate_pairs(positions, moving=True)
         self.timings["broad_phase"] += time.perf_counter() - t0
         stats.candidate_pairs = len(pairs)
-        self._wake(pairs, speeds)
-        islands = self._islands(pairs)
+        object_pairs = self._object_pairs(pairs)
+        self._wake(object_pairs, speeds)
+        islands = self._islands(object_pairs)
         stats.islands = len(islands)
         stats.awake_objects = sum(len(isl) for isl in islands)
         for b in self.bodies:
@@ -257,15 +297,16 @@ class ImplicitEulerSolver:
             b.reset_step_forces()
         supported = np.zeros(len(self.bodies), dtype=bool)
         by_substeps: dict[int, list[list[int]]] = {}
-        for island in islands:  # islands that need the same sub-steps are solved together
-            by_substeps.setdefault(self._island_substeps(island, positions, pairs), []).append(island)
+        for island, num_sub in zip(islands, self._island_substeps(islands, positions, object_pairs, speeds)):
+            by_substeps.setdefault(num_sub, []).append(island)  # islands that need the same sub-steps: one solve
         for num_sub, group in sorted(by_substeps.items()):
             stats.substeps = max(stats.substeps, num_sub)
             self.h = self.dt / num_sub
             members = [k for island in group for k in island]
+            member_pairs = self._member_pairs(members, pairs)
             for _ in range(num_sub):
                 t0 = time.perf_counter()
-                pair_set = self._island_pairs(members, pairs, positions)
+                pair_set = self._island_pairs(*member_pairs, positions)
                 stats.newton_iterations += self._solve_group(group, pair_set, self.h, stats, supported)
                 for k in members:
                     positions[k] = self.bodies[k].contact_positions()
@@ -276,30 +317,67 @@ class ImplicitEulerSolver:
         self.step_index += 1
         return stats
 
-    def _island_substeps(self, island: list[int], positions: list[torch.Tensor], pairs: np.ndarray) -> int:
-        """Sub-steps so that no point moves more than PAIR_REACH_RADII radii (near another object) or
-        SCENE_REACH_RADII radii (near the static scene only) per sub-step.
+    def _sphere_velocities(self, k: int) -> tuple[torch.Tensor, float]:
+        """Contact sphere velocities (n, 3) m/s of object k at its current rate and the fastest one's
+        speed, m/s; kept while its ``qdot`` is the same tensor, unmodified (sleep checks, the next step's
+        broad phase and sub-steps ask again)."""
+        b = self.bodies[k]
+        cached = self._velocity_cache[k]
+        if cached is not None and cached[0] is b.qdot and cached[1] == b.qdot._version:
+            return cached[2], cached[3]
+        velocity = b.contact.velocities(b.qdot)
+        speed = float(velocity.norm(dim=1).max())
+        self._velocity_cache[k] = (b.qdot, b.qdot._version, velocity, speed)
+        return velocity, speed
+
+    def _max_speed(self, k: int) -> float:
+        """Fastest contact sphere of object k, m/s."""
+        return self._sphere_velocities(k)[1]
+
+    def _island_substeps(
+        self,
+        islands: list[list[int]],
+        positions: list[torch.Tensor],
+        object_pairs: np.ndarray,
+        speeds: list[float | None],
+    ) -> list[int]:
+        """Per island: sub-steps so that no point moves more than PAIR_REACH_RADII radii (near another
+        object) or SCENE_REACH_RADII radii (near the static scene only) per sub-step.
 
         The radius is the object's median contact radius (tiny spheres fitted into edges are covered by
         their neighbours).  Usually at most ``preset.max_contact_substeps``; beyond that cap only when
-        the reach demands it, up to ``HARD_SUBSTEP_LIMIT``."""
-        paired = set(self.point_object[pairs].ravel().tolist()) if len(pairs) else set()
-        worst = 0.0
-        for k in island:  # loop over objects
-            b = self.bodies[k]
-            reach = float(b.contact.velocities(b.qdot).norm(dim=1).max()) * self.dt
-            r_min = float(b.radius_m.median())
-            if k in paired:
-                worst = max(worst, reach / (PAIR_REACH_RADII * r_min))
+        the reach demands it, up to ``HARD_SUBSTEP_LIMIT``.  ``speeds``: the objects' fastest sphere (m/s)
+        at the start of the step, None for those asleep then.  The objects without object candidates
+        query the scene together, once."""
+        paired = set(object_pairs.ravel().tolist())
+        reach = {
+            k: (self._max_speed(k) if speeds[k] is None else speeds[k]) * self.dt
+            for island in islands
+            for k in island
+        }
+        alone = [k for island in islands for k in island if k not in paired]
+        near_scene: dict[int, bool] = {}
+        if alone:
+            sdf, _ = self.scene.query(torch.cat([positions[k] for k in alone]))
+            ends = np.cumsum([self.bodies[k].contact.num_points for k in alone])
+            for k, gap in zip(alone, np.split(sdf, ends[:-1])):  # loop over objects
+                near_scene[k] = bool(((gap - self.bodies[k].radius_m.numpy()) < 2.0 * reach[k]).any())
+        out = []
+        for island in islands:
+            worst = 0.0
+            for k in island:  # loop over objects
+                r_min = self._median_radius_m[k]
+                if k in paired:
+                    worst = max(worst, reach[k] / (PAIR_REACH_RADII * r_min))
+                elif near_scene[k]:
+                    worst = max(worst, reach[k] / (SCENE_REACH_RADII * r_min))
+            needed = max(1, int(np.ceil(worst)))
+            if needed <= self.preset.max_contact_substeps:
+                out.append(needed)
                 continue
-            sdf, _ = self.scene.query(positions[k])
-            if bool(((sdf - b.radius_m.numpy()) < 2.0 * reach).any()):
-                worst = max(worst, reach / (SCENE_REACH_RADII * r_min))
-        needed = max(1, int(np.ceil(worst)))
-        if needed <= self.preset.max_contact_substeps:
-            return needed
-        self.counters["substep_cap_raised"] += 1
-        return min(HARD_SUBSTEP_LIMIT, needed)
+            self.counters["substep_cap_raised"] += 1
+            out.append(min(HARD_SUBSTEP_LIMIT, needed))
+        return out
 
     def refresh_forces(self) -> StepStats:
         """Contact forces of the current state without stepping (used for the initial frame)."""
@@ -309,10 +387,11 @@ class ImplicitEulerSolver:
         supported = np.zeros(len(self.bodies), dtype=bool)
         for b in self.bodies:
             b.reset_step_forces()
-        islands = self._islands(pairs)
+        islands = self._islands(self._object_pairs(pairs))
         if islands:
             members = [k for island in islands for k in island]
-            self._record_current_forces(islands, self._island_pairs(members, pairs, positions), stats, supported)
+            ps = self._island_pairs(*self._member_pairs(members, pairs), positions)
+            self._record_current_forces(islands, ps, stats, supported)
         return stats
 
     def energies(self) -> dict[str, float]:
@@ -322,9 +401,16 @@ class ImplicitEulerSolver:
         grav = sum(b.model.gravity_energy(b.q, self.gravity) for b in self.bodies)
         positions = [b.contact_positions() for b in self.bodies]
         con = 0.0
-        for k, b in enumerate(self.bodies):
-            pc, _, _ = static_contact(positions[k], b.radius_m, _scalar(self.stiffness(k)), self.scene)
-            con += pc.energy
+        if self.bodies:  # scene contact: one query for all spheres, summed object by object
+            sdf, normal = self.scene.query(torch.cat(positions))
+            stiffness = torch.cat(
+                [torch.full((b.contact.num_points,), self.stiffness(k), dtype=DTYPE) for k, b in enumerate(self.bodies)]
+            )
+            energy, _, _ = point_terms.penalty(
+                self.radii_all - torch.from_numpy(sdf), torch.from_numpy(normal), stiffness, False
+            )
+            for part in energy.split([b.contact.num_points for b in self.bodies]):  # loop over objects
+                con += float(part.sum())
         pairs = self._candidate_pairs(positions, moving=False)
         if len(pairs):
             oi, oj = self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]
@@ -352,28 +438,39 @@ class ImplicitEulerSolver:
         together.  1.5 x that (velocities change within the step) plus what gravity adds."""
         velocity = torch.cat(
             [
-                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if b.asleep else b.contact.velocities(b.qdot)
-                for b in self.bodies
+                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if b.asleep else self._sphere_velocities(k)[0]
+                for k, b in enumerate(self.bodies)
             ]
         )
         relative_speed = (velocity - velocity.mean(0)).norm(dim=1).numpy()
-        return 1.5 * relative_speed * h + float(self.gravity.norm()) * h**2
+        return 1.5 * relative_speed * h + self._gravity_m_s2 * h**2
 
-    def _wake(self, pairs: np.ndarray, speeds: list[float]) -> None:
-        if not len(pairs):
-            return
-        obj_pairs = np.unique(self.point_object[pairs], axis=0)
-        for a, c in obj_pairs:  # loop over object pairs
+    def _object_pairs(self, pairs: np.ndarray) -> np.ndarray:
+        """The distinct object pairs (a, c) of candidate point pairs, sorted lexicographically (a < c)."""
+        n = len(self.bodies)
+        linked = np.zeros((n, n), dtype=bool)
+        if len(pairs):
+            linked[self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]] = True
+        return np.argwhere(linked)
+
+    def _wake(self, object_pairs: np.ndarray, speeds: list[float | None]) -> None:
+        """Wake sleepers in candidate contact with an object that was awake at the start of the step and is
+        faster than the sleep speed (``speeds``, m/s, None for objects asleep then: one woken here has
+        no speed and wakes nobody)."""
+        for a, c in object_pairs:  # loop over object pairs
             for mover, sleeper in ((a, c), (c, a)):
+                speed = speeds[mover]
                 if (
                     self.bodies[sleeper].asleep
                     and not self.bodies[mover].asleep
-                    and speeds[mover] > self.preset.sleep_speed_m_s
+                    and speed is not None
+                    and speed > self.preset.sleep_speed_m_s
                 ):
                     self.bodies[sleeper].asleep = False
                     self.bodies[sleeper].slow_steps = 0
 
-    def _islands(self, pairs: np.ndarray) -> list[list[int]]:
+    def _islands(self, object_pairs: np.ndarray) -> list[list[int]]:
+        """Awake objects linked by object candidate pairs, each island sorted, islands by smallest member."""
         parent = list(range(len(self.bodies)))
 
         def root(k: int) -> int:
@@ -382,10 +479,9 @@ class ImplicitEulerSolver:
                 k = parent[k]
             return k
 
-        if len(pairs):
-            for a, c in np.unique(self.point_object[pairs], axis=0):
-                if not self.bodies[a].asleep and not self.bodies[c].asleep:
-                    parent[root(a)] = root(c)
+        for a, c in object_pairs:
+            if not self.bodies[a].asleep and not self.bodies[c].asleep:
+                parent[root(a)] = root(c)
         groups: dict[int, list[int]] = {}
         for k, b in enumerate(self.bodies):
             if not b.asleep:
@@ -397,7 +493,7 @@ class ImplicitEulerSolver:
         for island in islands:
             for k in island:
                 b = self.bodies[k]
-                speed = float(b.contact.velocities(b.qdot).norm(dim=1).max())
+                speed = self._max_speed(k)
                 if threshold > 0 and speed < threshold and supported[k]:
                     b.slow_steps += 1
                 else:
@@ -408,25 +504,39 @@ class ImplicitEulerSolver:
 
     def _pair_tables(self) -> tuple[np.ndarray, np.ndarray]:
         """Per object pair: contact stiffness (N/m) = factor * reduced mass / h^2 (a sleeping partner counts
-        as infinitely heavy) and friction coefficient sqrt(mu_a mu_c)."""
-        mass = np.array([b.model.mass_kg for b in self.bodies])
+        as infinitely heavy) and friction coefficient sqrt(mu_a mu_c).  Kept while h and the sleep flags
+        stay the same (every sub-step of a step)."""
         asleep = np.array([b.asleep for b in self.bodies])
+        key = (self.h, asleep.tobytes())
+        if self._pair_table_cache is not None and self._pair_table_cache[0] == key:
+            return self._pair_table_cache[1]
+        mass = np.array([b.model.mass_kg for b in self.bodies])
         reduced = mass[:, None] * mass[None, :] / (mass[:, None] + mass[None, :])
         reduced = np.where(asleep[None, :], mass[:, None], np.where(asleep[:, None], mass[None, :], reduced))
         mu = np.array([b.friction_coefficient for b in self.bodies])
-        return self.preset.contact_stiffness_factor * reduced / self.h**2, np.sqrt(mu[:, None] * mu[None, :])
+        tables = self.preset.contact_stiffness_factor * reduced / self.h**2, np.sqrt(mu[:, None] * mu[None, :])
+        self._pair_table_cache = (key, tables)
+        return tables
 
-    def _island_pairs(self, island: list[int], pairs: np.ndarray, positions: list[torch.Tensor]) -> _PairSet:
-        members = np.asarray(island)
+    def _member_pairs(self, members: list[int], pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The candidate point pairs (global indices gi, gj) touching some of ``members``, oriented so that
+        side i is on a member."""
+        is_member = np.zeros(len(self.bodies), dtype=bool)
+        is_member[members] = True
         sel = pairs if len(pairs) else np.zeros((0, 2), dtype=np.int64)
-        inside = np.isin(self.point_object[sel], members)  # (P, 2)
-        sel = sel[inside.any(axis=1)]
-        swap = ~inside[inside.any(axis=1), 0]  # orient every pair so that side i is an island member
-        gi = np.where(swap, sel[:, 1], sel[:, 0])
-        gj = np.where(swap, sel[:, 0], sel[:, 1])
+        inside = is_member[self.point_object[sel]]  # (P, 2)
+        touching = inside.any(axis=1)
+        sel = sel[touching]
+        swap = ~inside[touching, 0]  # orient every pair so that side i is an island member
+        return np.where(swap, sel[:, 1], sel[:, 0]), np.where(swap, sel[:, 0], sel[:, 1])
+
+    def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor]) -> _PairSet:
+        """The pair set of a (sub)step from the members' candidate pairs (:meth:`_member_pairs`) and the
+        current sphere positions (m)."""
+        x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
         if len(gi) and self.h < self.dt:
             # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
-            x_np = torch.cat(positions).numpy()
+            x_np = x_all.numpy()
             reach = self._reach(self.h)
             radii = self.radii_all.numpy()
             gap = np.linalg.norm(x_np[gi] - x_np[gj], axis=1) - radii[gi] - radii[gj]
@@ -434,30 +544,57 @@ class ImplicitEulerSolver:
             gi, gj = gi[near], gj[near]
         oi, oj = self.point_object[gi], self.point_object[gj]
         li, lj = gi - self.offsets[oi], gj - self.offsets[oj]
-        x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
         stiffness, friction = self._pair_tables()
         k = torch.from_numpy(stiffness[oi, oj])
         mu = torch.from_numpy(friction[oi, oj])
-        rs = self.radii_all[gi] + self.radii_all[gj]
-        x0i, x0j = x_all[gi], x_all[gj]
+        gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
+        rs = self.radii_all[gi_t] + self.radii_all[gj_t]
+        x0i, x0j = x_all[gi_t], x_all[gj_t]
         start = pair_contact(x0i, x0j, rs, k) if len(gi) else None
         lam = (k * start.depth_m.clamp(min=0.0)) if start is not None else torch.zeros(0, dtype=DTYPE)
         n0 = start.normal_ji if start is not None else torch.zeros(0, 3, dtype=DTYPE)
-        return _PairSet(
-            oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, torch.from_numpy(gi), torch.from_numpy(gj)
-        )
+        return _PairSet(oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, gi_t, gj_t)
 
     # ------------------------------------------------------------------ Newton on a group of islands
-    def _padded_states(self, objects: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Padded (n, 3, K) states q and rates qdot of some bodies."""
-        k = self.model.columns
-        tm = torch.zeros(len(objects), 3 * k, dtype=DTYPE)
+    def _group_setup(self, islands: list[list[int]]) -> _GroupSetup:
+        """The objects, selected model rows and DOF layout of a solve of ``islands`` (cached per islands)."""
+        key = tuple(tuple(island) for island in islands)
+        setup = self._groups.get(key)
+        if setup is not None:
+            self._groups.move_to_end(key)
+            return setup
+        objects = [k for island in islands for k in island]
+        island_slot = torch.tensor([a for a, island in enumerate(islands) for _ in island], dtype=torch.int64)
+        slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
+        slot_of[objects] = np.arange(len(objects))
+        model = self.model.select(torch.tensor(objects, dtype=torch.int64))
+        width = 3 * self.model.columns
+        padded = [self._padded_index[o] + slot * width for slot, o in enumerate(objects)]
+        setup = _GroupSetup(
+            objects=objects,
+            slot_of=slot_of,
+            model=model,
+            layout=DofLayout.build(model.num_handles, island_slot, model.columns),
+            padded=torch.cat(padded) if padded else torch.zeros(0, dtype=torch.int64),
+            sizes=[int(index.shape[0]) for index in padded],
+        )
+        self._groups[key] = setup
+        self._groups_bytes += setup.nbytes
+        while len(self._groups) > 1 and (
+            len(self._groups) > _GROUP_CACHE_SIZE or self._groups_bytes > self._groups_max_bytes
+        ):  # drop the least recently used
+            self._groups_bytes -= self._groups.popitem(last=False)[1].nbytes
+        return setup
+
+    def _padded_states(self, setup: _GroupSetup) -> tuple[torch.Tensor, torch.Tensor]:
+        """Padded (n, 3, K) states q and rates qdot of a solve's bodies."""
+        n, k = len(setup.objects), self.model.columns
+        tm = torch.zeros(n * 3 * k, dtype=DTYPE)
         tmdot = torch.zeros_like(tm)
-        for slot, o in enumerate(objects):  # once per solve
-            index = self._padded_index[o]
-            tm[slot, index] = self.bodies[o].q
-            tmdot[slot, index] = self.bodies[o].qdot
-        return tm.reshape(-1, 3, k), tmdot.reshape(-1, 3, k)
+        if n:
+            tm[setup.padded] = torch.cat([self.bodies[o].q for o in setup.objects])
+            tmdot[setup.padded] = torch.cat([self.bodies[o].qdot for o in setup.objects])
+        return tm.reshape(n, 3, k), tmdot.reshape(n, 3, k)
 
     def _group_pairs(self, objects: list[int], slot_of: np.ndarray, ps: _PairSet, model: Model) -> PairSet:
         """The candidate pairs of a solve in solved-object slots (sleeping partners frozen)."""
@@ -485,15 +622,11 @@ class ImplicitEulerSolver:
                      supported: np.ndarray) -> int:
         """One implicit Euler (sub)step of size h for several independent islands at once; records the
         contact forces of the final state. Returns the Newton iterations summed over the islands."""
-        objects = [k for island in islands for k in island]
-        island_slot = torch.tensor([a for a, island in enumerate(islands) for _ in island], dtype=torch.int64)
-        slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
-        slot_of[objects] = np.arange(len(objects))
+        setup = self._group_setup(islands)
+        objects, slot_of, model, layout = setup.objects, setup.slot_of, setup.model, setup.layout
         self.counters["island_solves"] += len(islands)
         self.counters["island_object_solves"] += len(objects)
-        model = self.model.select(torch.tensor(objects, dtype=torch.int64))
-        layout = DofLayout.build(model.num_handles, island_slot, model.columns)
-        tm_n, tmdot = self._padded_states(objects)
+        tm_n, tmdot = self._padded_states(setup)
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm_n, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
@@ -501,6 +634,8 @@ class ImplicitEulerSolver:
         )  # fmt: skip
 
         def check_gradient(grad: torch.Tensor) -> None:
+            if bool(torch.isfinite(grad).all()):
+                return
             bad = ~torch.isfinite(layout.to_objects(grad).reshape(len(objects), -1)).all(1)
             if bool(bad.any()):
                 self._check_finite([objects[int(torch.nonzero(bad)[0])]], [torch.tensor([float("nan")])],
@@ -523,14 +658,13 @@ class ImplicitEulerSolver:
         for key, value in result.counters.items():
             self.counters[key] += value
         tm = layout.to_objects(result.q)
-        for slot, o in enumerate(objects):
-            q = tm[slot].reshape(-1)[self._padded_index[o]]
-            self._check_finite([o], [q], "reduced state q")
-        for slot, o in enumerate(objects):
-            b = self.bodies[o]
-            q = tm[slot].reshape(-1)[self._padded_index[o]].clone()
-            b.qdot = (q - b.q) / h
-            b.q = q
+        q = tm.reshape(-1)[setup.padded]  # the objects' unpadded states, concatenated
+        if not bool(torch.isfinite(q).all()):
+            self._check_finite(objects, list(q.split(setup.sizes)), "reduced state q")
+        qdot = (q - torch.cat([self.bodies[o].q for o in objects])) / h
+        for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per solve
+            self.bodies[o].q = q_o
+            self.bodies[o].qdot = qdot_o
         self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model, h, stats, supported)
         return int(result.iterations.sum())
 
@@ -538,13 +672,9 @@ class ImplicitEulerSolver:
                                supported: np.ndarray) -> None:
         """Contact forces of the current state without stepping (the initial frame): the step that led
         here is taken to have started at ``q - h qdot``."""
-        objects = [k for island in islands for k in island]
-        slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
-        slot_of[objects] = np.arange(len(objects))
-        model = self.model.select(torch.tensor(objects, dtype=torch.int64))
-        island_slot = torch.tensor([a for a, island in enumerate(islands) for _ in island], dtype=torch.int64)
-        layout = DofLayout.build(model.num_handles, island_slot, model.columns)
-        tm, tmdot = self._padded_states(objects)
+        setup = self._group_setup(islands)
+        objects, slot_of, model, layout = setup.objects, setup.slot_of, setup.model, setup.layout
+        tm, tmdot = self._padded_states(setup)
         h = self.h
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm - h * tmdot, tmdot, h,
@@ -576,10 +706,17 @@ class ImplicitEulerSolver:
         nrm = nrm / nrm.norm(dim=1, keepdim=True).clamp(min=1e-300)
         touching = (mag > 0).any(1).numpy()
         total_np, pos_np, nrm_np = total.numpy(), pos.numpy(), nrm.numpy()
+        # SimBody.reset_step_forces for all objects at once: the step's forces start from the scene's,
+        # pair forces are added below
+        contact_force = force.clone()
+        partner = torch.where(mag > 0, 0, NO_PARTNER)
         for slot, o in enumerate(objects):  # once per (sub)step: bookkeeping only
             b = self.bodies[o]
-            b.static_force_n = force[slot, : b.contact.num_points].clone()
-            b.reset_step_forces()  # pair forces are added below
+            k = b.contact.num_points
+            b.static_force_n = force[slot, :k]
+            b.contact_force_n = contact_force[slot, :k]
+            b.partner_strength_n = mag[slot, :k]
+            b.contact_partner = partner[slot, :k]
             if touching[slot]:
                 supported[o] = True
                 b.static_summary = (total_np[slot], pos_np[slot], nrm_np[slot])
@@ -642,44 +779,79 @@ class ImplicitEulerSolver:
         stats: StepStats,
         supported: np.ndarray,
     ) -> None:
-        """Add pair forces (N, on side i; side j gets the opposite) to per-point records and pair totals."""
-        mag = f_i.norm(dim=1)
-        act = mag > 0
-        if not bool(act.any()):
+        """Add pair forces (N, on side i; side j gets the opposite) to per-point records and pair totals.
+
+        One pass over all pairs, grouped by object pair (a, c) (sorted): a's spheres get the force on side
+        i, c's the opposite (a sleeping c collects the average over the island's sub-steps); a sphere's
+        partner is the object whose force on it (the largest of its pairs, N) is strongest, the first such
+        object pair winning ties, and only if stronger than the contact it already has.  Each sphere's
+        forces are added in the order of a loop over the object pairs, then their point pairs.  Per
+        object pair the step statistics get the total force (on the smaller id), the force-weighted
+        position and the normal (from the smaller id's side)."""
+        mag_t = f_i.norm(dim=1)  # (the partner strengths: the same norm as the scene forces')
+        mag = mag_t.numpy()
+        rows = np.flatnonzero(mag > 0)
+        if not len(rows):
             return
-        act_np = act.numpy()
-        for a, c in np.unique(np.stack([obj_i[act_np], obj_j[act_np]], 1), axis=0):  # loop over object pairs
-            sel = torch.from_numpy((obj_i == a) & (obj_j == c)) & act
-            li = torch.from_numpy(loc_i)[sel]
-            lj = torch.from_numpy(loc_j)[sel]
-            fa = f_i[sel]
-            m = mag[sel]
-            ba, bc = self.bodies[a], self.bodies[c]
-            ba.contact_force_n.index_add_(0, li, fa)
-            # a sleeping partner collects the average over the island's sub-steps
-            bc.contact_force_n.index_add_(0, lj, -fa * (self.h / self.dt if bc.asleep else 1.0))
-            _assign_partner(ba, li, m, bc.object_id)
-            _assign_partner(bc, lj, m, ba.object_id)
-            supported[a] = True
-            if bc.asleep:
-                supported[c] = True
-            pos = ((m[:, None] * 0.5 * (xi[sel] + xj[sel])).sum(0) / m.sum()).numpy()
-            nrm = (m[:, None] * normal_ji[sel]).sum(0).numpy()
-            total = fa.sum(0).numpy()
-            if ba.object_id > bc.object_id:  # events are keyed (smaller id, larger id), force on the smaller
-                total, nrm = -total, -nrm
-            key = (min(ba.object_id, bc.object_id), max(ba.object_id, bc.object_id))
-            stats.add_pair_force(key, total, pos, nrm / max(float(np.linalg.norm(nrm)), 1e-300), self.h)
+        oi, oj = obj_i[rows], obj_j[rows]
+        n = len(self.bodies)
+        keys, group = np.unique(oi * n + oj, return_inverse=True)  # object pairs (a, c), sorted
+        group = group.reshape(-1)
+        obj_a, obj_c = keys // n, keys % n
+        fa, m = f_i.numpy()[rows], mag[rows]
+
+        # per-sphere records of the objects involved, concatenated (numpy views of their tensors)
+        involved = np.unique(np.concatenate([obj_a, obj_c]))
+        counts = [self.bodies[o].contact.num_points for o in involved]
+        first = np.zeros(n, dtype=np.int64)
+        first[involved] = np.cumsum([0] + counts[:-1])
+        asleep = np.array([b.asleep for b in self.bodies])
+        dest = np.concatenate([first[oi] + loc_i[rows], first[oj] + loc_j[rows]])
+        rank = np.concatenate([2 * group, 2 * group + 1])  # object pair, then side i before side j
+        order = np.argsort(rank, kind="stable")
+        scale_j = np.where(asleep[oj], self.h / self.dt, 1.0)
+        force = np.concatenate([self.bodies[o].contact_force_n.numpy() for o in involved])
+        np.add.at(force, dest[order], np.concatenate([fa, -fa * scale_j[:, None]])[order])  # in that order
+        strength = np.concatenate([self.bodies[o].partner_strength_n.numpy() for o in involved])
+        partner = np.concatenate([self.bodies[o].contact_partner.numpy() for o in involved])
+        m2 = np.concatenate([m, m])
+        best = np.zeros_like(strength)
+        np.maximum.at(best, dest, m2)
+        wins = (m2 == best[dest]) & (m2 > strength[dest])
+        none = 2 * len(keys)
+        winner = np.full(len(partner), none, dtype=np.int64)
+        np.minimum.at(winner, dest[wins], rank[wins])
+        # partner id per rank: side i (2 g) is pushed by c, side j (2 g + 1) by a
+        partner_of_rank = np.stack([self._object_id[obj_c], self._object_id[obj_a]], 1).reshape(-1)
+        taken = winner < none
+        partner = np.where(taken, partner_of_rank[np.minimum(winner, none - 1)], partner)
+        strength = np.maximum(best, strength)
+        ends = np.cumsum(counts)[:-1]
+        for o, f_o, s_o, p_o in zip(
+            involved, np.split(force, ends), np.split(strength, ends), np.split(partner, ends)
+        ):  # loop over objects
+            b = self.bodies[o]
+            b.contact_force_n = torch.from_numpy(f_o)
+            b.partner_strength_n = torch.from_numpy(s_o)
+            b.contact_partner = torch.from_numpy(p_o)
+        supported[obj_a] = True
+        supported[obj_c[asleep[obj_c]]] = True
+
+        # per object pair: total force on a (N), force-weighted contact position (m) and normal c -> a
+        weighted = np.concatenate(
+            [fa, m[:, None] * 0.5 * (xi.numpy()[rows] + xj.numpy()[rows]), m[:, None] * normal_ji.numpy()[rows], m[:, None]],
+            axis=1,
+        )
+        sums = np.zeros((len(keys), 10))
+        np.add.at(sums, group, weighted)
+        total, pos, nrm = sums[:, 0:3], sums[:, 3:6] / sums[:, 9:10], sums[:, 6:9]
+        id_a, id_c = self._object_id[obj_a], self._object_id[obj_c]
+        for g in range(len(keys)):  # loop over object pairs: events are keyed (smaller id, larger id)
+            total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
+            key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
+            stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
 
 
-def _assign_partner(body: SimBody, local: torch.Tensor, magnitude: torch.Tensor, partner_id: int) -> None:
-    """Points whose force from ``partner_id`` (N) exceeds their strongest contact so far take it as partner."""
-    best = torch.zeros(body.contact.num_points, dtype=DTYPE)
-    best.scatter_reduce_(0, local, magnitude, reduce="amax", include_self=True)
-    take = best > body.partner_strength_n
-    body.contact_partner = torch.where(take, partner_id, body.contact_partner)
-    body.partner_strength_n = torch.maximum(best, body.partner_strength_n)
-
-
-def _scalar(value: float) -> torch.Tensor:
-    return torch.tensor(value, dtype=DTYPE)
+def _model_bytes(model: Model) -> int:
+    """Memory of a model's tensors, bytes."""
+    return sum(getattr(model, f.name).nbytes for f in fields(model))

@@ -1,0 +1,214 @@
+"""The solver's vectorised bookkeeping, its cached solve set-up and the grouped broad phase equal their plain
+definitions."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from data_gen.sim.contact import PairFinder
+from data_gen.sim.presets import load_preset
+from data_gen.sim.solver import NO_PARTNER, ImplicitEulerSolver, SimBody, StepStats
+from data_gen.sim.static_scene import StaticScene
+from tests.sim.test_sim_batched_terms import _object
+
+
+def brute_force_pairs(points, object_ids, radii, margin, point_margins):
+    """All (i < j) on different objects closer than r_i + r_j + margin + m_i + m_j, sorted."""
+    extra = np.zeros(len(points)) if point_margins is None else point_margins
+    dist = np.linalg.norm(points[:, None] - points[None, :], axis=2)
+    limit = radii[:, None] + radii[None, :] + margin + extra[:, None] + extra[None, :]
+    i, j = np.nonzero((dist < limit) & (object_ids[:, None] != object_ids[None, :]))
+    keep = j > i
+    out = np.stack([i[keep], j[keep]], 1).astype(np.int64)
+    return out[np.lexsort((out[:, 1], out[:, 0]))]
+
+
+@pytest.mark.parametrize("ids_kind", ["ascending", "shuffled", "sparse"])
+def test_grouped_broad_phase_finds_exactly_the_close_pairs(ids_kind):
+    rng = np.random.default_rng(3)
+    finder = PairFinder()
+    for trial in range(6):
+        sizes = rng.integers(0, 120, rng.integers(2, 8))
+        ids = np.concatenate([np.full(s, k) for k, s in enumerate(sizes)])
+        if ids_kind == "shuffled":
+            ids = rng.permutation(ids)
+        elif ids_kind == "sparse":
+            ids = 7 * ids + 3
+        centres = rng.normal(scale=0.1, size=(len(sizes), 3))
+        points = centres[np.searchsorted(np.unique(ids), ids)] + rng.normal(scale=0.04, size=(len(ids), 3))
+        radii = rng.uniform(0.002, 0.02, len(ids))
+        margins = rng.uniform(0.0, 0.03, len(ids)) if trial % 2 else None
+        found = finder.find(points, ids, radii, 0.004, margins)
+        expected = brute_force_pairs(points, ids, radii, 0.004, margins)
+        assert len(expected) > 0 or trial
+        np.testing.assert_array_equal(found, expected)
+        # same ids, new radii: the cached upload must follow
+        np.testing.assert_array_equal(
+            finder.find(points, ids, 1.5 * radii, 0.004, margins),
+            brute_force_pairs(points, ids, 1.5 * radii, 0.004, margins),
+        )
+
+
+def test_broad_phase_of_one_object_is_empty():
+    points = np.random.default_rng(0).normal(size=(20, 3))
+    assert PairFinder().find(points, np.zeros(20, dtype=int), np.full(20, 0.5), 0.1).shape == (0, 2)
+
+
+# ---------------------------------------------------------------- pair force bookkeeping
+def _reference_assign_partner(body, local, magnitude, partner_id):
+    """The former per-object-pair update of the dominant partner (strictly stronger contact wins)."""
+    best = torch.zeros(body.contact.num_points, dtype=torch.float64)
+    best.scatter_reduce_(0, local, magnitude, reduce="amax", include_self=True)
+    take = best > body.partner_strength_n
+    body.contact_partner = torch.where(take, partner_id, body.contact_partner)
+    body.partner_strength_n = torch.maximum(best, body.partner_strength_n)
+
+
+def _reference_accumulate(solver, obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, normal_ji, stats, supported):
+    """The former loop over object pairs of ImplicitEulerSolver._accumulate_pair_forces."""
+    mag = f_i.norm(dim=1)
+    act = mag > 0
+    if not bool(act.any()):
+        return
+    act_np = act.numpy()
+    for a, c in np.unique(np.stack([obj_i[act_np], obj_j[act_np]], 1), axis=0):
+        sel = torch.from_numpy((obj_i == a) & (obj_j == c)) & act
+        li = torch.from_numpy(loc_i)[sel]
+        lj = torch.from_numpy(loc_j)[sel]
+        fa = f_i[sel]
+        m = mag[sel]
+        ba, bc = solver.bodies[a], solver.bodies[c]
+        ba.contact_force_n.index_add_(0, li, fa)
+        bc.contact_force_n.index_add_(0, lj, -fa * (solver.h / solver.dt if bc.asleep else 1.0))
+        _reference_assign_partner(ba, li, m, bc.object_id)
+        _reference_assign_partner(bc, lj, m, ba.object_id)
+        supported[a] = True
+        if bc.asleep:
+            supported[c] = True
+        pos = ((m[:, None] * 0.5 * (xi[sel] + xj[sel])).sum(0) / m.sum()).numpy()
+        nrm = (m[:, None] * normal_ji[sel]).sum(0).numpy()
+        total = fa.sum(0).numpy()
+        if ba.object_id > bc.object_id:
+            total, nrm = -total, -nrm
+        key = (min(ba.object_id, bc.object_id), max(ba.object_id, bc.object_id))
+        stats.add_pair_force(key, total, pos, nrm / max(float(np.linalg.norm(nrm)), 1e-300), solver.h)
+
+
+def _bookkeeping_solver(rng, num_points, asleep, h_s, dt_s):
+    """A solver holding only what the force bookkeeping reads: bodies with per-sphere records."""
+    solver = object.__new__(ImplicitEulerSolver)
+    solver.bodies = []
+    for k, (n, sleeping) in enumerate(zip(num_points, asleep, strict=True)):
+        force = torch.from_numpy(rng.normal(size=(n, 3)) * (rng.random((n, 1)) < 0.3))
+        strength = force.norm(dim=1)
+        solver.bodies.append(
+            SimpleNamespace(
+                object_id=k + 1,
+                asleep=sleeping,
+                contact=SimpleNamespace(num_points=n),
+                contact_force_n=force,
+                partner_strength_n=strength,
+                contact_partner=torch.where(strength > 0, 0, NO_PARTNER),
+            )
+        )
+    solver.h, solver.dt = h_s, dt_s
+    solver._object_id = np.array([b.object_id for b in solver.bodies])
+    return solver
+
+
+def test_vectorised_pair_bookkeeping_equals_the_loop_over_object_pairs():
+    num_points, asleep = [7, 5, 9, 4, 6], [False, False, True, False, True]
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        p = 60
+        obj_i = rng.choice([0, 1, 3], size=p)  # awake side i (solved objects)
+        obj_j = (obj_i + rng.integers(1, 5, size=p)) % 5
+        loc_i = np.array([rng.integers(num_points[o]) for o in obj_i])
+        loc_j = np.array([rng.integers(num_points[o]) for o in obj_j])
+        f_i = torch.from_numpy(rng.normal(size=(p, 3)))
+        f_i[torch.from_numpy(rng.random(p) < 0.3)] = 0.0  # inactive pairs
+        # one sphere pushed equally hard by two objects: the first object pair in order is its partner
+        obj_i[4:6], loc_i[4:6], obj_j[4:6] = 0, 0, [2, 1]
+        f_i[4] = 100.0 * f_i[4]
+        f_i[5] = -f_i[4]
+        xi, xj = torch.from_numpy(rng.normal(size=(p, 3))), torch.from_numpy(rng.normal(size=(p, 3)))
+        normal = torch.nn.functional.normalize(xi - xj, dim=1)
+        args = (obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, normal)
+        ref, new = (_bookkeeping_solver(np.random.default_rng(seed), num_points, asleep, 0.0025, 0.01) for _ in "ab")
+        stats_ref, stats_new = StepStats(), StepStats()
+        sup_ref, sup_new = np.zeros(5, dtype=bool), np.zeros(5, dtype=bool)
+        _reference_accumulate(ref, *args, stats_ref, sup_ref)
+        ImplicitEulerSolver._accumulate_pair_forces(new, *args, stats_new, sup_new)
+        np.testing.assert_array_equal(sup_new, sup_ref)
+        for b_ref, b_new in zip(ref.bodies, new.bodies, strict=True):
+            assert torch.equal(b_new.contact_force_n, b_ref.contact_force_n)  # same additions in the same order
+            assert torch.equal(b_new.partner_strength_n, b_ref.partner_strength_n)
+            assert torch.equal(b_new.contact_partner, b_ref.contact_partner)
+        assert list(stats_new.pair_forces) == list(stats_ref.pair_forces)
+        for key, entry in stats_ref.pair_forces.items():
+            for name, value in entry.items():
+                np.testing.assert_allclose(stats_new.pair_forces[key][name], value, rtol=1e-12, atol=1e-14)
+
+
+def test_pair_bookkeeping_without_active_pairs_changes_nothing():
+    solver = _bookkeeping_solver(np.random.default_rng(0), [3, 3], [False, False], 0.01, 0.01)
+    before = [b.contact_force_n.clone() for b in solver.bodies]
+    stats, supported = StepStats(), np.zeros(2, dtype=bool)
+    zeros = torch.zeros(2, 3, dtype=torch.float64)
+    ImplicitEulerSolver._accumulate_pair_forces(
+        solver, np.array([0, 0]), np.array([0, 1]), np.array([1, 1]), np.array([2, 0]), zeros, zeros, zeros, zeros,
+        stats, supported,
+    )  # fmt: skip
+    assert not stats.pair_forces and not supported.any()
+    for b, f in zip(solver.bodies, before, strict=True):
+        assert torch.equal(b.contact_force_n, f)
+
+
+# ---------------------------------------------------------------- solve set-up
+def _solver(handles=(1, 3, 2, 1)):
+    """A solver over small random objects (1..3 handles) at random states."""
+    gen = torch.Generator().manual_seed(11)
+    bodies = []
+    for k, h in enumerate(handles):
+        model, contact = _object(h, seed=k)
+        q = 0.05 * torch.randn(model.num_dofs, generator=gen, dtype=torch.float64)
+        qdot = torch.randn(model.num_dofs, generator=gen, dtype=torch.float64)
+        bodies.append(SimBody(k + 1, f"o{k}", model, contact, 0.5, q, qdot))
+    return ImplicitEulerSolver(bodies, StaticScene(), np.array([0.0, 0.0, -9.81]), load_preset("draft"), 0.01)
+
+
+def test_solve_setup_gathers_the_states_of_each_object_and_is_reused():
+    solver = _solver()
+    islands = [[0, 2], [1], [3]]
+    setup = solver._group_setup(islands)
+    assert solver._group_setup([list(i) for i in islands]) is setup  # the same islands: the same set-up
+    tm, tmdot = solver._padded_states(setup)
+    k = solver.model.columns
+    for slot, o in enumerate(setup.objects):  # the per-object reference: each q at its padded positions
+        ref, ref_dot = torch.zeros(3 * k, dtype=torch.float64), torch.zeros(3 * k, dtype=torch.float64)
+        ref[solver._padded_index[o]] = solver.bodies[o].q
+        ref_dot[solver._padded_index[o]] = solver.bodies[o].qdot
+        assert torch.equal(tm[slot].reshape(-1), ref) and torch.equal(tmdot[slot].reshape(-1), ref_dot)
+    assert setup.objects == [0, 2, 1, 3] and list(setup.slot_of) == [0, 2, 1, 3]
+    assert torch.equal(setup.layout.island, torch.tensor([0, 0, 1, 2]))
+    assert torch.equal(setup.model.num_handles, solver.model.num_handles[[0, 2, 1, 3]])
+    # least recently used set-ups are dropped beyond the memory bound
+    solver._groups_max_bytes = 2 * setup.nbytes
+    for groups in ([[0]], [[1]], [[2]], [[3]], [[0, 1]]):
+        solver._group_setup(groups)
+        assert len(solver._groups) >= 1 and solver._groups_bytes <= max(solver._groups_max_bytes, setup.nbytes)
+    assert tuple(map(tuple, islands)) not in solver._groups
+
+
+def test_object_pairs_are_the_sorted_distinct_pairs_of_candidates():
+    solver = _solver()
+    rng = np.random.default_rng(2)
+    n = len(solver.point_object)
+    i = rng.integers(0, n, 200)
+    j = rng.integers(0, n, 200)
+    keep = solver.point_object[i] < solver.point_object[j]
+    pairs = np.stack([i[keep], j[keep]], 1)
+    np.testing.assert_array_equal(solver._object_pairs(pairs), np.unique(solver.point_object[pairs], axis=0))
+    assert solver._object_pairs(np.zeros((0, 2), dtype=np.int64)).shape == (0, 2)
