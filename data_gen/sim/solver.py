@@ -48,7 +48,7 @@ from data_gen.sim.newton import NewtonSettings, minimise
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.reduced import DTYPE, ReducedObject
 from data_gen.sim.static_scene import StaticScene
-from data_gen.sim.step_objective import ContactForces, StepObjective
+from data_gen.sim.step_objective import ContactForces, SolveWorkspace, StepObjective
 
 NO_PARTNER = -1  # contact partner id of a point without contact (0 is the static scene)
 # Near contact a point may move at most this many of its contact radii per sub-step. Two approaching
@@ -191,6 +191,7 @@ class _GroupSetup:
         padded: (sum 12 H,) positions of the objects' concatenated unpadded q-orderings in the flattened
             padded (n, 3, K) states.
         sizes: 12 H per object (its q length).
+        workspace: the objective's kernels and buffers for these islands (built at their first solve).
     """
 
     objects: list[int]
@@ -199,6 +200,13 @@ class _GroupSetup:
     layout: DofLayout
     padded: torch.Tensor
     sizes: list[int]
+    workspace: SolveWorkspace | None = None
+
+    def objective_workspace(self, scene: SceneDistance) -> SolveWorkspace:
+        """The :class:`SolveWorkspace` of these islands, built on first use."""
+        if self.workspace is None:
+            object.__setattr__(self, "workspace", SolveWorkspace(self.model, self.layout, scene))
+        return self.workspace
 
     @property
     def nbytes(self) -> int:
@@ -630,7 +638,7 @@ class ImplicitEulerSolver:
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm_n, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
-            self._group_pairs(objects, slot_of, ps, model),
+            self._group_pairs(objects, slot_of, ps, model), setup.objective_workspace(self.scene_distance),
         )  # fmt: skip
 
         def check_gradient(grad: torch.Tensor) -> None:
@@ -679,7 +687,7 @@ class ImplicitEulerSolver:
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm - h * tmdot, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
-            self._group_pairs(objects, slot_of, ps, model),
+            self._group_pairs(objects, slot_of, ps, model), setup.objective_workspace(self.scene_distance),
         )  # fmt: skip
         self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model, h, stats, supported)
 

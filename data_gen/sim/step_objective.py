@@ -43,8 +43,40 @@ class ContactForces:
     pair_normals: torch.Tensor
 
 
+class SolveWorkspace:
+    """What the objective of a fixed set of objects and islands needs whatever the step: the warp contact
+    and neo-Hookean kernels with their buffers, the elastic groups (one-handle objects keep one cubature
+    point) and per-island constants. The solver keeps one per group of islands and reuses it for every
+    (sub)step that solves the same islands."""
+
+    def __init__(self, model: Model, layout: DofLayout, scene: SceneDistance) -> None:
+        self.contact = WarpContact(
+            scene.scene, 4 * model.num_handles, model.sphere_rest_m, model.sphere_b, model.sphere_radius_m,
+            layout.flat_index, layout.island_size, layout.num_islands,
+        )  # fmt: skip
+        rigid = model.num_handles == 1
+        self.elastic_groups = [
+            (idx, model.cub_c[idx][:, :width], WarpNeoHookean(
+                4 * model.num_handles[idx], model.cub_c[idx][:, :width], model.cub_volume_m3[idx][:, :width],
+                model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx]))
+            for idx, width in ((torch.nonzero(rigid)[:, 0], 1), (torch.nonzero(~rigid)[:, 0], model.cub_c.shape[1]))
+            if len(idx)
+        ]  # one-handle objects integrate with their single cubature point
+        n_isl, size = layout.num_islands, layout.island_size
+        dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
+        self.padding = (torch.arange(size)[None, :] >= dofs[:, None]).to(DTYPE)  # (n_isl, N) unused entries
+        self.island_mass_kg = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)
+        radii = torch.where(model.sphere_valid, model.sphere_radius_m, torch.tensor(float("nan"), dtype=DTYPE))
+        median = radii.nanmedian(dim=1).values
+        self.min_median_radius_m = torch.full((n_isl,), float("inf"), dtype=DTYPE).scatter_reduce(
+            0, layout.island, median, reduce="amin"
+        )
+
+
 class StepObjective(Objective):
-    """Objective, gradient and Newton matrix of one (sub)step, per island (see the module docstring)."""
+    """Objective, gradient and Newton matrix of one (sub)step, per island (see the module docstring).
+
+    ``workspace`` is the :class:`SolveWorkspace` of ``model`` and ``layout`` (built here when omitted)."""
 
     def __init__(
         self,
@@ -58,6 +90,7 @@ class StepObjective(Objective):
         stiffness_factor: float,
         smoothing_m: float,
         pairs: PairSet,
+        workspace: SolveWorkspace | None = None,
     ) -> None:
         self.model, self.layout, self.scene, self.pairs = model, layout, scene, pairs
         self.gravity = gravity_m_s2
@@ -70,29 +103,16 @@ class StepObjective(Objective):
         self.start = contact_start(
             scene, model.sphere_positions(tm_n), model.sphere_radius_m, model.sphere_valid, self.scene_stiffness_n_m
         )
-        self.contact = WarpContact(
-            scene.scene, 4 * model.num_handles, model.sphere_rest_m, model.sphere_b, model.sphere_radius_m,
+        self.workspace = workspace if workspace is not None else SolveWorkspace(model, layout, scene)
+        self.contact = self.workspace.contact
+        self.contact.prepare(
             self.sphere_stiffness_n_m, model.friction[:, None] * self.start.normal_force_n, self.start.positions_m,
-            self.start.normals, smoothing_m, pairs if pairs.num_pairs else None, layout.flat_index, layout.island_size,
-            layout.num_islands, self.h2,
+            self.start.normals, smoothing_m, self.h2, pairs if pairs.num_pairs else None,
         )  # fmt: skip
-        rigid = model.num_handles == 1
-        self.elastic_groups = [
-            (idx, model.cub_c[idx][:, :width], WarpNeoHookean(
-                4 * model.num_handles[idx], model.cub_c[idx][:, :width], model.cub_volume_m3[idx][:, :width],
-                model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx]))
-            for idx, width in ((torch.nonzero(rigid)[:, 0], 1), (torch.nonzero(~rigid)[:, 0], model.cub_c.shape[1]))
-            if len(idx)
-        ]  # one-handle objects integrate with their single cubature point
-        n_isl, size = layout.num_islands, layout.island_size
-        dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
-        self.padding = torch.arange(size)[None, :] >= dofs[:, None]  # (n_isl, N) unused island entries
-        self.island_mass_kg = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)
-        radii = torch.where(model.sphere_valid, model.sphere_radius_m, torch.tensor(float("nan"), dtype=DTYPE))
-        median = radii.nanmedian(dim=1).values
-        self.min_median_radius_m = torch.full((n_isl,), float("inf"), dtype=DTYPE).scatter_reduce(
-            0, layout.island, median, reduce="amin"
-        )
+        self.elastic_groups = self.workspace.elastic_groups
+        self.padding = self.workspace.padding
+        self.island_mass_kg = self.workspace.island_mass_kg
+        self.min_median_radius_m = self.workspace.min_median_radius_m
 
     # -- sizes of the step
     def _per_island(self, per_object: torch.Tensor, reduce: str = "sum") -> torch.Tensor:
@@ -152,7 +172,7 @@ class StepObjective(Objective):
             return Evaluation(value)
         grad = self.layout.to_islands(it.grad + self.h2 * (el.grad + gr.grad)) + contact.grad
         matrix = self.layout.assemble(it.hess + self.h2 * el.hess).add_(contact.hess)  # contact: h^2 already
-        matrix.diagonal(dim1=1, dim2=2).add_(self.padding.to(DTYPE))
+        matrix.diagonal(dim1=1, dim2=2).add_(self.padding)
         return Evaluation(value, grad, matrix)
 
     def _elastic(self, tm: torch.Tensor, derivatives: bool, strict: torch.Tensor | None) -> ObjectTerms:
@@ -188,4 +208,4 @@ class StepObjective(Objective):
         )
 
 
-__all__ = ["ContactForces", "StepObjective"]
+__all__ = ["ContactForces", "SolveWorkspace", "StepObjective"]

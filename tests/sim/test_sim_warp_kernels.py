@@ -96,10 +96,15 @@ def test_kernels_equal_the_torch_terms(scene):
     ref_matrix = layout.assemble(h2 * pc.cross, pc.cross_rows, pc.cross_cols, out=ref_matrix)
 
     contact = WarpContact(
-        scene, 4 * model.num_handles, model.sphere_rest_m, model.sphere_b, model.sphere_radius_m, sphere_k,
-        friction[:, None] * start.normal_force_n, start.positions_m, start.normals, smoothing, pairs,
-        layout.flat_index, layout.island_size, layout.num_islands, h2,
+        scene, 4 * model.num_handles, model.sphere_rest_m, model.sphere_b, model.sphere_radius_m,
+        layout.flat_index, layout.island_size, layout.num_islands,
     )  # fmt: skip
+    # a first solve with other data and fewer pairs: the workspace must not keep anything of it
+    contact.prepare(2.0 * sphere_k, torch.zeros_like(sphere_k), start.positions_m, start.normals, 3.0 * smoothing,
+                    1.0, None)  # fmt: skip
+    contact.evaluate(tm, True)
+    contact.prepare(sphere_k, friction[:, None] * start.normal_force_n, start.positions_m, start.normals, smoothing,
+                    h2, pairs)  # fmt: skip
     out = contact.evaluate(tm, True)
     grad, matrix = out.grad.clone(), out.hess.clone()
     assert torch.allclose(out.energy_j, ref_energy, rtol=1e-12, atol=1e-15)

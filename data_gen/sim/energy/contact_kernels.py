@@ -289,103 +289,156 @@ class ContactOutputs:
 
 
 class WarpContact:
-    """The contact terms of one solve (fixed objects, islands, pairs and frozen start data) on warp.
+    """The contact terms of a fixed set of objects and islands on warp, reused by every solve of them.
 
-    The kernels' arguments are packed once (recorded launches); an evaluation copies the state into a
-    persistent buffer, clears the outputs and launches.
+    Built once per set of objects (their spheres and DOF layout); :meth:`prepare` copies one solve's frozen
+    start data and candidate pairs into persistent buffers; :meth:`evaluate` copies the state in, clears the
+    outputs and replays the recorded launches (the kernels' arguments are packed once; the pair launch is
+    re-recorded only when the pair count outgrows its buffers).
 
     Args:
         scene: the static scene (its warp box arrays and point grid are cached on it).
         columns: (n,) 4 H per object; rest (n, S, 3) m, b (n, S, K), radius (n, S) m: the spheres.
-        stiffness_n_m: (n, S) per sphere (0 on padding); friction_scale_n: (n, S) mu lam of the start.
-        start_x_m, start_normals: (n, S, 3) frozen start positions and scene normals.
-        smoothing_m: friction smoothing length eps (m).
-        pairs: :class:`data_gen.sim.energy.pair_contact.PairSet` of the solve, or None.
         flat_index: (n, 3K) island positions (:class:`data_gen.sim.model.DofLayout`); island_size N;
             num_islands.
-        scale: factor of the gradient and matrix (the solver's h^2); energies are not scaled.
     """
 
     def __init__(self, scene: StaticScene, columns: torch.Tensor, rest: torch.Tensor, b: torch.Tensor,
-                 radius: torch.Tensor, stiffness_n_m: torch.Tensor, friction_scale_n: torch.Tensor,
-                 start_x_m: torch.Tensor, start_normals: torch.Tensor, smoothing_m: float, pairs,
-                 flat_index: torch.Tensor, island_size: int, num_islands: int, scale: float) -> None:  # fmt: skip
-        torch_device = rest.device
-        device = "cuda:0" if str(torch_device) == "cuda" else str(torch_device)
-        n, s = stiffness_n_m.shape
-        k = b.shape[2]
-        num_pairs = 0 if pairs is None else pairs.num_pairs
-        self.shape = (n, s, k, num_islands, island_size, num_pairs)
+                 radius: torch.Tensor, flat_index: torch.Tensor, island_size: int, num_islands: int) -> None:  # fmt: skip
+        self.torch_device = rest.device
+        self.device = "cuda:0" if str(self.torch_device) == "cuda" else str(self.torch_device)
+        n, s, k = b.shape
+        self.shape = (n, s, k, num_islands, island_size)
+        self.num_pairs = 0
 
         def zeros(*shape: int) -> torch.Tensor:
-            return torch.zeros(*shape, dtype=rest.dtype, device=torch_device)
+            return torch.zeros(*shape, dtype=rest.dtype, device=self.torch_device)
 
-        self.tm = zeros(n, 3, k)
-        self.energy = zeros(n)
+        self._zeros = zeros
+        self.tm, self.energy = zeros(n, 3, k), zeros(n)
         self.grad = zeros(num_islands * island_size)
         self.hess = zeros(num_islands * island_size * island_size)
         self.scene_force, self.scene_normals = zeros(n, s, 3), zeros(n, s, 3)
-        self.pair_force, self.pair_normals = zeros(num_pairs, 3), zeros(num_pairs, 3)
+        # one solve's scene data: stiffness (0 on padding), mu lam, start positions and normals
+        self.stiffness, self.friction_scale = zeros(n, s), zeros(n, s)
+        self.start_x, self.start_normals = zeros(n, s, 3), zeros(n, s, 3)
         i32 = torch.int32
-        keep = [columns.to(i32), flat_index.to(i32)]  # converted tensors live as long as their warp views
-        common = [_wp(self.tm), _wp(keep[0]), _wp(rest, wp.vec3d), _wp(b)]
-        boxes = scene._device_boxes(device)
+        self._constants = [columns.to(i32).contiguous(), flat_index.to(i32).contiguous(), rest.contiguous(),
+                           b.contiguous(), radius.contiguous()]  # fmt: skip
+        columns_i, flat_i, rest_c, b_c, radius_c = self._constants
+        self._common = [_wp(self.tm), _wp(columns_i), _wp(rest_c, wp.vec3d), _wp(b_c)]
+        boxes = scene._device_boxes(self.device)
         if scene.points is not None:
-            grid, static_points = scene._device_points(device)
+            grid, static_points = scene._device_points(self.device)
             points = [1, grid.id, static_points, wp.float64(scene.points.radius_m), wp.float64(scene.points.search_m)]
         else:
-            empty = wp.zeros(0, dtype=wp.vec3d, device=device)
+            empty = wp.zeros(0, dtype=wp.vec3d, device=self.device)
             points = [0, wp.uint64(0), empty, wp.float64(0.0), wp.float64(1.0)]
-        # shared last arguments of both kernels; [2] is ``derivatives``
-        tail = [_wp(keep[1]), int(island_size), 1, wp.float64(scale), _wp(self.energy), _wp(self.grad), _wp(self.hess)]
+        # the last arguments of both kernels: [2] is ``derivatives``, [3] ``scale``
+        self._tail = [_wp(flat_i), int(island_size), 1, wp.float64(1.0), _wp(self.energy), _wp(self.grad),
+                      _wp(self.hess)]  # fmt: skip
+        head = [*self._common, _wp(radius_c), _wp(self.stiffness), _wp(self.friction_scale),
+                _wp(self.start_x, wp.vec3d), _wp(self.start_normals, wp.vec3d)]  # fmt: skip
+        self._scene_smoothing_index = len(head)
         scene_inputs = [
-            *common, _wp(radius), _wp(stiffness_n_m), _wp(friction_scale_n), _wp(start_x_m, wp.vec3d),
-            _wp(start_normals, wp.vec3d), wp.float64(smoothing_m), int(scene.ground), *boxes, wp.float64(_FAR_M),
-            *points, *tail, _wp(self.scene_force, wp.vec3d), _wp(self.scene_normals, wp.vec3d),
+            *head, wp.float64(0.0), int(scene.ground), *boxes, wp.float64(_FAR_M), *points, *self._tail,
+            _wp(self.scene_force, wp.vec3d), _wp(self.scene_normals, wp.vec3d),
         ]  # fmt: skip
-        self._arguments = [keep, scene_inputs]  # the recorded launches hold raw pointers to these
+        self._scene_inputs = scene_inputs  # the recorded launch holds raw pointers to these
+        self._scene = wp.launch(scene_contact_kernel, dim=(n, s), inputs=scene_inputs, device=self.device,
+                                record_cmd=True)  # fmt: skip
+        self._pair = None
+        self._pair_capacity = 0
+        self._derivatives, self._smoothing, self._scale = True, 0.0, 1.0
 
-        def derivatives_index(inputs: list) -> int:  # every kernel ends with (*tail, force_out, normal_out)
-            return len(inputs) - 2 - len(tail) + 2
+    def _tail_index(self, inputs: list, offset: int) -> int:
+        """Position of ``tail[offset]`` in a kernel's inputs (every kernel ends with tail, force, normal)."""
+        return len(inputs) - 2 - len(self._tail) + offset
 
-        # one recorded launch per kernel; an evaluation sets its ``derivatives`` argument
-        self._launches = [(wp.launch(scene_contact_kernel, dim=(n, s), inputs=scene_inputs, device=device,
-                                     record_cmd=True), derivatives_index(scene_inputs))]  # fmt: skip
-        if num_pairs:
-            ints = [t.to(i32) for t in (pairs.obj_i, pairs.sph_i, pairs.obj_j, pairs.sph_j)]
-            pair_inputs = [
-                *common, *[_wp(t) for t in ints], _wp(pairs.frozen_x_j, wp.vec3d), _wp(pairs.stiffness_n_m),
-                _wp(pairs.radius_sum_m), _wp(pairs.friction * pairs.normal_force_n), _wp(pairs.normal0, wp.vec3d),
-                _wp(pairs.x0_i, wp.vec3d), _wp(pairs.x0_j, wp.vec3d), wp.float64(smoothing_m),
-                *tail, _wp(self.pair_force, wp.vec3d), _wp(self.pair_normals, wp.vec3d),
-            ]  # fmt: skip
-            self._arguments += [ints, pair_inputs]
-            self._launches.append(
-                (wp.launch(pair_contact_kernel, dim=num_pairs, inputs=pair_inputs, device=device, record_cmd=True),
-                 derivatives_index(pair_inputs))
-            )  # fmt: skip
-        self._derivatives = True
+    def _grow_pairs(self, count: int) -> None:
+        """Pair buffers for at least ``count`` pairs and a pair launch recorded over them."""
+        capacity = max(64, 1 << (count - 1).bit_length())
+        zeros, i32 = self._zeros, torch.int32
+        ints = [torch.zeros(capacity, dtype=i32, device=self.torch_device) for _ in range(4)]
+        vec = [zeros(capacity, 3) for _ in range(4)]  # frozen x_j, normal0, x0_i, x0_j
+        scal = [zeros(capacity) for _ in range(3)]  # stiffness, radius sum, mu lam
+        self.pair_force, self.pair_normals = zeros(capacity, 3), zeros(capacity, 3)
+        self._pair_buffers = (ints, vec, scal)
+        frozen_x, normal0, x0_i, x0_j = vec
+        stiffness, radius_sum, friction_scale = scal
+        head = [
+            *self._common, *[_wp(t) for t in ints], _wp(frozen_x, wp.vec3d), _wp(stiffness), _wp(radius_sum),
+            _wp(friction_scale), _wp(normal0, wp.vec3d), _wp(x0_i, wp.vec3d), _wp(x0_j, wp.vec3d),
+        ]  # fmt: skip
+        self._pair_smoothing_index = len(head)
+        inputs = [*head, wp.float64(self._smoothing), *self._tail, _wp(self.pair_force, wp.vec3d),
+                  _wp(self.pair_normals, wp.vec3d)]  # fmt: skip
+        self._pair_inputs = inputs
+        self._pair = wp.launch(pair_contact_kernel, dim=capacity, inputs=inputs, device=self.device, record_cmd=True)
+        self._pair.set_param_at_index(self._tail_index(inputs, 2), int(self._derivatives))
+        self._pair.set_param_at_index(self._tail_index(inputs, 3), wp.float64(self._scale))
+        self._pair_capacity = capacity
+
+    def prepare(self, stiffness_n_m: torch.Tensor, friction_scale_n: torch.Tensor, start_x_m: torch.Tensor,
+                start_normals: torch.Tensor, smoothing_m: float, scale: float, pairs) -> None:  # fmt: skip
+        """One solve's data: per-sphere stiffness (n, S) N/m (0 on padding), frozen mu lam (n, S) N, start
+        positions and scene normals (n, S, 3); friction smoothing eps (m); ``scale`` of the gradient and
+        matrix (the solver's h^2; energies are not scaled); the candidate pairs
+        (:class:`data_gen.sim.energy.pair_contact.PairSet` in this object set's slots, or None)."""
+        self.stiffness.copy_(stiffness_n_m)
+        self.friction_scale.copy_(friction_scale_n)
+        self.start_x.copy_(start_x_m)
+        self.start_normals.copy_(start_normals)
+        self.num_pairs = 0 if pairs is None else pairs.num_pairs
+        if self.num_pairs > self._pair_capacity:
+            self._grow_pairs(self.num_pairs)
+        if self.num_pairs:
+            p = self.num_pairs
+            ints, vec, scal = self._pair_buffers
+            for buffer, value in zip(ints, (pairs.obj_i, pairs.sph_i, pairs.obj_j, pairs.sph_j)):
+                buffer[:p].copy_(value)
+            for buffer, value in zip(vec, (pairs.frozen_x_j, pairs.normal0, pairs.x0_i, pairs.x0_j)):
+                buffer[:p].copy_(value)
+            for buffer, value in zip(scal, (pairs.stiffness_n_m, pairs.radius_sum_m,
+                                            pairs.friction * pairs.normal_force_n)):  # fmt: skip
+                buffer[:p].copy_(value)
+            self._pair.set_dim(p)
+        if smoothing_m != self._smoothing or scale != self._scale:
+            self._smoothing, self._scale = float(smoothing_m), float(scale)
+            self._scene.set_param_at_index(self._scene_smoothing_index, wp.float64(self._smoothing))
+            self._scene.set_param_at_index(self._tail_index(self._scene_inputs, 3), wp.float64(self._scale))
+            if self._pair is not None:
+                self._pair.set_param_at_index(self._pair_smoothing_index, wp.float64(self._smoothing))
+                self._pair.set_param_at_index(self._tail_index(self._pair_inputs, 3), wp.float64(self._scale))
 
     def evaluate(self, tm: torch.Tensor, derivatives: bool = False) -> ContactOutputs:
-        """Contact terms at padded states ``tm`` (n, 3, K)."""
-        n, s, k, num_islands, size, _ = self.shape
+        """Contact terms at padded states ``tm`` (n, 3, K) with the data of the last :meth:`prepare`."""
+        n, s, k, num_islands, size = self.shape
+        p = self.num_pairs
         self.tm.copy_(tm)
-        for buffer in (self.energy, self.scene_force, self.scene_normals, self.pair_force, self.pair_normals):
+        for buffer in (self.energy, self.scene_force, self.scene_normals):
             buffer.zero_()
+        if p:
+            self.pair_force[:p].zero_()
+            self.pair_normals[:p].zero_()
         if derivatives:
             self.grad.zero_()
             self.hess.zero_()
         if derivatives != self._derivatives:
-            for launch, index in self._launches:
-                launch.set_param_at_index(index, int(derivatives))
             self._derivatives = derivatives
-        for launch, _ in self._launches:
-            launch.launch()
+            self._scene.set_param_at_index(self._tail_index(self._scene_inputs, 2), int(derivatives))
+            if self._pair is not None:
+                self._pair.set_param_at_index(self._tail_index(self._pair_inputs, 2), int(derivatives))
+        self._scene.launch()
+        if p:
+            self._pair.launch()
+        empty = self._zeros(0, 3)
         return ContactOutputs(
             self.energy,
             self.grad.view(num_islands, size) if derivatives else None,
             self.hess.view(num_islands, size, size) if derivatives else None,
-            self.scene_force, self.scene_normals, self.pair_force, self.pair_normals,
+            self.scene_force, self.scene_normals,
+            self.pair_force[:p] if p else empty, self.pair_normals[:p] if p else empty,
         )  # fmt: skip
 
 
