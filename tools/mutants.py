@@ -24,9 +24,10 @@ DEFAULT_TESTS: dict[str, tuple[str, ...]] = {
     "data_gen/vqa/generator.py": ("tests/data_gen/test_vqa_generation.py",),
     "data_gen/vqa/rules.py": ("tests/data_gen/test_vqa_generation.py",),
     "newtphys/vqa_schema.py": ("tests/newtphys/test_core_vqa_contract.py",),
-    "data_gen/sim/energy/pair_contact.py": ("tests/sim/test_sim_batched_terms.py", "tests/sim/test_sim_collision.py"),
-    "data_gen/sim/energy/point_terms.py": ("tests/sim/test_sim_batched_terms.py", "tests/sim/test_sim_collision.py",
-                                           "tests/sim/test_sim_column.py"),
+    "data_gen/sim/energy/pair_contact.py": ("tests/sim/test_sim_batched_terms.py", "tests/sim/test_sim_warp_kernels.py"),
+    # the solver runs the warp kernels; the torch terms are their reference in test_sim_warp_kernels
+    "data_gen/sim/energy/point_terms.py": ("tests/sim/test_sim_warp_kernels.py", "tests/sim/test_sim_batched_terms.py",
+                                           "tests/sim/test_sim_collision.py"),
     "data_gen/sim/energy/contact_kernels.py": ("tests/sim/test_sim_warp_kernels.py", "tests/sim/test_sim_collision.py"),
     "data_gen/sim/energy/elastic_kernel.py": ("tests/sim/test_sim_warp_kernels.py", "tests/sim/test_sim_column.py"),
     "data_gen/sim/energy/gravity.py": ("tests/sim/test_sim_batched_terms.py", "tests/sim/test_sim_freefall.py"),
