@@ -27,6 +27,14 @@ every elastic block projected), ``substep_cap_raised`` and energy evaluations.
 Sleeping: an awake object whose fastest cubature point moves slower than ``sleep_speed_m_s`` while it is
 supported (in contact) for ``sleep_steps`` consecutive steps is frozen (no Newton work, its contact
 forces held); it wakes when an object moving faster than that speed comes into contact range.
+
+Layout (as in warp's and Newton's simulators): the fixed description of the objects is the stacked
+:class:`~data_gen.sim.model.Model` (plus each :class:`SimBody`'s reduced model and contact spheres), the
+energy terms live in :mod:`data_gen.sim.energy` (summed by :class:`StepObjective`), and the dynamic state
+(reduced coordinates ``q``, rates ``qdot``, sleep flags and slow-step counts) is the solver's one
+:class:`~data_gen.sim.state.State`, ``ImplicitEulerSolver.state``: every step reads it and replaces the
+entries of the objects it solved.  A :class:`SimBody` holds one object's fixed description and the
+step's contact force bookkeeping, no state.
 """
 
 from __future__ import annotations
@@ -47,6 +55,7 @@ from data_gen.sim.model import DofLayout, Model, padded_index
 from data_gen.sim.newton import NewtonSettings, minimise
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.reduced import DTYPE, ReducedObject
+from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.step_objective import ContactForces, SolveWorkspace, StepObjective
 
@@ -76,7 +85,10 @@ class SimulationError(RuntimeError):
 
 @dataclass
 class SimBody:
-    """One simulated object: its reduced model, contact spheres and mutable state.
+    """One simulated object's fixed description and its per-step contact force bookkeeping.
+
+    Its dynamic state (reduced coordinates, rates, sleep flags) is not here: it lives in the solver's
+    :class:`~data_gen.sim.state.State` (``ImplicitEulerSolver.state``), at this body's index.
 
     Attributes:
         object_id: 1-based id (0 is the static scene).
@@ -85,7 +97,8 @@ class SimBody:
         contact: contact spheres (k of them) moved by the same basis; per-point contact arrays below
             are per sphere.
         friction_coefficient: Coulomb coefficient (dimensionless, >= 0).
-        q, qdot: reduced state (q-ordering) and its rate (1/s).
+        contact_force_n, contact_partner, static_force_n, partner_strength_n, static_summary: the
+            current step's contact forces (rewritten every step; the scene's are held while asleep).
     """
 
     object_id: int
@@ -93,10 +106,6 @@ class SimBody:
     model: ReducedObject
     contact: ContactPoints
     friction_coefficient: float
-    q: torch.Tensor
-    qdot: torch.Tensor
-    asleep: bool = False
-    slow_steps: int = 0
     contact_force_n: torch.Tensor = field(init=False)  # (k,3) N per sphere, this step
     contact_partner: torch.Tensor = field(init=False)  # (k,) dominant partner id, NO_PARTNER if none
     static_force_n: torch.Tensor = field(init=False)  # (k,3) N from the scene (held while asleep)
@@ -121,9 +130,9 @@ class SimBody:
         """(k,) contact sphere radii, m."""
         return self.contact.radius_m
 
-    def contact_positions(self, q: torch.Tensor | None = None) -> torch.Tensor:
-        """(k,3) world sphere centres, m, of state q (default: the current state)."""
-        return self.contact.positions(self.q if q is None else q)
+    def contact_positions(self, q: torch.Tensor) -> torch.Tensor:
+        """(k,3) world sphere centres, m, of reduced coordinates q (this body's entry of a State)."""
+        return self.contact.positions(q)
 
     def cubature_contact(self) -> tuple[torch.Tensor, torch.Tensor]:
         """This step's contact force (n,3) N and dominant partner (n,) per cubature point."""
@@ -215,18 +224,31 @@ class _GroupSetup:
 
 
 class ImplicitEulerSolver:
-    """Advances a list of :class:`SimBody` by implicit Euler steps of ``dt_s`` seconds."""
+    """Advances the :class:`State` of a list of :class:`SimBody` by implicit Euler steps of ``dt_s``
+    seconds.
+
+    Args:
+        bodies: the objects (fixed description and force bookkeeping).
+        state: their initial dynamic state, in the same order; the solver owns it (``self.state``) and
+            replaces its entries step by step.
+        scene: the static scene; gravity_m_s2: (3,) m/s^2; preset: solver settings; dt_s: step, s;
+        device: warp device of the broad phase.
+    """
 
     def __init__(
         self,
         bodies: list[SimBody],
+        state: State,
         scene: StaticScene,
         gravity_m_s2: np.ndarray,
         preset: QualityPreset,
         dt_s: float,
         device: str = "cpu",
     ) -> None:
+        if state.num_objects != len(bodies):
+            raise ValueError(f"state holds {state.num_objects} objects for {len(bodies)} bodies")
         self.bodies = bodies
+        self.state = state
         self.scene = scene
         self.gravity = torch.as_tensor(np.asarray(gravity_m_s2, dtype=np.float64))
         self.preset = preset
@@ -289,8 +311,8 @@ class ImplicitEulerSolver:
         stats = StepStats()
         self.h = self.dt
         t0 = time.perf_counter()
-        positions = [b.contact_positions() for b in self.bodies]
-        speeds = [None if b.asleep else self._max_speed(k) for k, b in enumerate(self.bodies)]
+        positions = self._contact_positions()
+        speeds = [None if asleep else self._max_speed(k) for k, asleep in enumerate(self.state.asleep)]
         pairs = self._candidate_pairs(positions, moving=True)
         self.timings["broad_phase"] += time.perf_counter() - t0
         stats.candidate_pairs = len(pairs)
@@ -299,8 +321,8 @@ class ImplicitEulerSolver:
         islands = self._islands(object_pairs)
         stats.islands = len(islands)
         stats.awake_objects = sum(len(isl) for isl in islands)
-        for b in self.bodies:
-            if not b.asleep:
+        for b, asleep in zip(self.bodies, self.state.asleep):
+            if not asleep:
                 b.static_force_n = torch.zeros_like(b.static_force_n)
             b.reset_step_forces()
         supported = np.zeros(len(self.bodies), dtype=bool)
@@ -317,7 +339,7 @@ class ImplicitEulerSolver:
                 pair_set = self._island_pairs(*member_pairs, positions)
                 stats.newton_iterations += self._solve_group(group, pair_set, self.h, stats, supported)
                 for k in members:
-                    positions[k] = self.bodies[k].contact_positions()
+                    positions[k] = self.bodies[k].contact_positions(self.state.q[k])
                 self.timings["newton"] += time.perf_counter() - t0
         self.h = self.dt
         self._record_sleeping_contacts(pairs, positions, stats)
@@ -329,13 +351,13 @@ class ImplicitEulerSolver:
         """Contact sphere velocities (n, 3) m/s of object k at its current rate and the fastest one's
         speed, m/s; kept while its ``qdot`` is the same tensor, unmodified (sleep checks, the next step's
         broad phase and sub-steps ask again)."""
-        b = self.bodies[k]
+        qdot = self.state.qdot[k]
         cached = self._velocity_cache[k]
-        if cached is not None and cached[0] is b.qdot and cached[1] == b.qdot._version:
+        if cached is not None and cached[0] is qdot and cached[1] == qdot._version:
             return cached[2], cached[3]
-        velocity = b.contact.velocities(b.qdot)
+        velocity = self.bodies[k].contact.velocities(qdot)
         speed = float(velocity.norm(dim=1).max())
-        self._velocity_cache[k] = (b.qdot, b.qdot._version, velocity, speed)
+        self._velocity_cache[k] = (qdot, qdot._version, velocity, speed)
         return velocity, speed
 
     def _max_speed(self, k: int) -> float:
@@ -390,7 +412,7 @@ class ImplicitEulerSolver:
     def refresh_forces(self) -> StepStats:
         """Contact forces of the current state without stepping (used for the initial frame)."""
         stats = StepStats()
-        positions = [b.contact_positions() for b in self.bodies]
+        positions = self._contact_positions()
         pairs = self._candidate_pairs(positions, moving=False)
         supported = np.zeros(len(self.bodies), dtype=bool)
         for b in self.bodies:
@@ -404,10 +426,11 @@ class ImplicitEulerSolver:
 
     def energies(self) -> dict[str, float]:
         """Kinetic, elastic, contact and gravity potential energy (J) of the current state."""
-        kin = sum(b.model.kinetic_energy(b.qdot) for b in self.bodies)
-        ela = sum(b.model.elastic_energy(b.q) for b in self.bodies)
-        grav = sum(b.model.gravity_energy(b.q, self.gravity) for b in self.bodies)
-        positions = [b.contact_positions() for b in self.bodies]
+        state = self.state
+        kin = sum(b.model.kinetic_energy(qdot) for b, qdot in zip(self.bodies, state.qdot))
+        ela = sum(b.model.elastic_energy(q) for b, q in zip(self.bodies, state.q))
+        grav = sum(b.model.gravity_energy(q, self.gravity) for b, q in zip(self.bodies, state.q))
+        positions = self._contact_positions()
         con = 0.0
         if self.bodies:  # scene contact: one query for all spheres, summed object by object
             sdf, normal = self.scene.query(torch.cat(positions))
@@ -429,6 +452,10 @@ class ImplicitEulerSolver:
         return {"kinetic": kin, "elastic": ela, "contact": con, "gravity": grav}
 
     # ------------------------------------------------------------------ broad phase, islands, sleep
+    def _contact_positions(self) -> list[torch.Tensor]:
+        """Per object: (k,3) world contact sphere centres, m, of the current state."""
+        return [b.contact_positions(q) for b, q in zip(self.bodies, self.state.q)]
+
     def _candidate_pairs(self, positions: list[torch.Tensor], moving: bool) -> np.ndarray:
         """Sphere pairs on different objects that may touch during the coming step (``moving``) or
         touch now, within a quarter radius (not moving: forces and energies of the current state)."""
@@ -446,8 +473,8 @@ class ImplicitEulerSolver:
         together.  1.5 x that (velocities change within the step) plus what gravity adds."""
         velocity = torch.cat(
             [
-                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if b.asleep else self._sphere_velocities(k)[0]
-                for k, b in enumerate(self.bodies)
+                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if asleep else self._sphere_velocities(k)[0]
+                for k, (b, asleep) in enumerate(zip(self.bodies, self.state.asleep))
             ]
         )
         relative_speed = (velocity - velocity.mean(0)).norm(dim=1).numpy()
@@ -465,17 +492,18 @@ class ImplicitEulerSolver:
         """Wake sleepers in candidate contact with an object that was awake at the start of the step and is
         faster than the sleep speed (``speeds``, m/s, None for objects asleep then: one woken here has
         no speed and wakes nobody)."""
+        asleep, slow_steps = self.state.asleep, self.state.slow_steps
         for a, c in object_pairs:  # loop over object pairs
             for mover, sleeper in ((a, c), (c, a)):
                 speed = speeds[mover]
                 if (
-                    self.bodies[sleeper].asleep
-                    and not self.bodies[mover].asleep
+                    asleep[sleeper]
+                    and not asleep[mover]
                     and speed is not None
                     and speed > self.preset.sleep_speed_m_s
                 ):
-                    self.bodies[sleeper].asleep = False
-                    self.bodies[sleeper].slow_steps = 0
+                    asleep[sleeper] = False
+                    slow_steps[sleeper] = 0
 
     def _islands(self, object_pairs: np.ndarray) -> list[list[int]]:
         """Awake objects linked by object candidate pairs, each island sorted, islands by smallest member."""
@@ -487,34 +515,37 @@ class ImplicitEulerSolver:
                 k = parent[k]
             return k
 
+        asleep = self.state.asleep
         for a, c in object_pairs:
-            if not self.bodies[a].asleep and not self.bodies[c].asleep:
+            if not asleep[a] and not asleep[c]:
                 parent[root(a)] = root(c)
         groups: dict[int, list[int]] = {}
-        for k, b in enumerate(self.bodies):
-            if not b.asleep:
+        for k in range(len(self.bodies)):
+            if not asleep[k]:
                 groups.setdefault(root(k), []).append(k)
         return [sorted(g) for _, g in sorted(groups.items(), key=lambda item: min(item[1]))]
 
     def _update_sleep(self, islands: list[list[int]], supported: np.ndarray) -> None:
+        """Count the slow, supported steps of the islands' objects; put to sleep (rate zeroed) those slow
+        for ``preset.sleep_steps`` steps."""
         threshold = self.preset.sleep_speed_m_s
+        state = self.state
         for island in islands:
             for k in island:
-                b = self.bodies[k]
                 speed = self._max_speed(k)
                 if threshold > 0 and speed < threshold and supported[k]:
-                    b.slow_steps += 1
+                    state.slow_steps[k] += 1
                 else:
-                    b.slow_steps = 0
-                if b.slow_steps >= self.preset.sleep_steps:
-                    b.asleep = True
-                    b.qdot = torch.zeros_like(b.qdot)
+                    state.slow_steps[k] = 0
+                if state.slow_steps[k] >= self.preset.sleep_steps:
+                    state.asleep[k] = True
+                    state.qdot[k] = torch.zeros_like(state.qdot[k])
 
     def _pair_tables(self) -> tuple[np.ndarray, np.ndarray]:
         """Per object pair: contact stiffness (N/m) = factor * reduced mass / h^2 (a sleeping partner counts
         as infinitely heavy) and friction coefficient sqrt(mu_a mu_c).  Kept while h and the sleep flags
         stay the same (every sub-step of a step)."""
-        asleep = np.array([b.asleep for b in self.bodies])
+        asleep = self.state.asleep.copy()
         key = (self.h, asleep.tobytes())
         if self._pair_table_cache is not None and self._pair_table_cache[0] == key:
             return self._pair_table_cache[1]
@@ -600,8 +631,8 @@ class ImplicitEulerSolver:
         tm = torch.zeros(n * 3 * k, dtype=DTYPE)
         tmdot = torch.zeros_like(tm)
         if n:
-            tm[setup.padded] = torch.cat([self.bodies[o].q for o in setup.objects])
-            tmdot[setup.padded] = torch.cat([self.bodies[o].qdot for o in setup.objects])
+            tm[setup.padded] = torch.cat([self.state.q[o] for o in setup.objects])
+            tmdot[setup.padded] = torch.cat([self.state.qdot[o] for o in setup.objects])
         return tm.reshape(n, 3, k), tmdot.reshape(n, 3, k)
 
     def _group_pairs(self, objects: list[int], slot_of: np.ndarray, ps: _PairSet, model: Model) -> PairSet:
@@ -669,10 +700,10 @@ class ImplicitEulerSolver:
         q = tm.reshape(-1)[setup.padded]  # the objects' unpadded states, concatenated
         if not bool(torch.isfinite(q).all()):
             self._check_finite(objects, list(q.split(setup.sizes)), "reduced state q")
-        qdot = (q - torch.cat([self.bodies[o].q for o in objects])) / h
+        qdot = (q - torch.cat([self.state.q[o] for o in objects])) / h
         for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per solve
-            self.bodies[o].q = q_o
-            self.bodies[o].qdot = qdot_o
+            self.state.q[o] = q_o
+            self.state.qdot[o] = qdot_o
         self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model, h, stats, supported)
         return int(result.iterations.sum())
 
@@ -743,13 +774,13 @@ class ImplicitEulerSolver:
         self, pairs: np.ndarray, positions: list[torch.Tensor], stats: StepStats
     ) -> None:
         """Frozen scene contacts of sleeping objects and normal forces between two sleeping objects."""
-        for b in self.bodies:
-            if b.asleep and b.static_summary is not None:
+        asleep = self.state.asleep
+        for b, sleeping in zip(self.bodies, asleep):
+            if sleeping and b.static_summary is not None:
                 stats.add_pair_force((b.object_id, 0), *b.static_summary, self.h)
         if not len(pairs):
             return
         oi, oj = self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]
-        asleep = np.array([b.asleep for b in self.bodies])
         both = asleep[oi] & asleep[oj]
         if not both.any():
             return
@@ -813,7 +844,7 @@ class ImplicitEulerSolver:
         counts = [self.bodies[o].contact.num_points for o in involved]
         first = np.zeros(n, dtype=np.int64)
         first[involved] = np.cumsum([0] + counts[:-1])
-        asleep = np.array([b.asleep for b in self.bodies])
+        asleep = self.state.asleep
         dest = np.concatenate([first[oi] + loc_i[rows], first[oj] + loc_j[rows]])
         rank = np.concatenate([2 * group, 2 * group + 1])  # object pair, then side i before side j
         order = np.argsort(rank, kind="stable")

@@ -30,6 +30,7 @@ from data_gen.sim.skinning import (
     train_skinning_basis,
 )
 from data_gen.sim.solver import ImplicitEulerSolver, SimBody, SimulationError
+from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.threads import torch_threads
 from newtphys.rotations import quat_to_matrix
@@ -237,18 +238,13 @@ class Simulator:
         dt = self.preset.dt_s(fps)
         sub = self.preset.substeps_per_frame
         bodies = [
-            SimBody(
-                k + 1,
-                p.spec.name,
-                p.model,
-                p.contact,
-                p.spec.friction_coefficient,
-                p.q0.clone(),
-                p.qdot0.clone(),
-            )
+            SimBody(k + 1, p.spec.name, p.model, p.contact, p.spec.friction_coefficient)
             for k, p in enumerate(self.prepared)
         ]
-        solver = ImplicitEulerSolver(bodies, self.scene, self.gravity, self.preset, dt, device=self.device)
+        state = State.awake([p.q0.clone() for p in self.prepared], [p.qdot0.clone() for p in self.prepared])
+        solver = ImplicitEulerSolver(
+            bodies, state, self.scene, self.gravity, self.preset, dt, device=self.device
+        )
         recorder = FrameRecorder(
             [b.name for b in bodies],
             [b.object_id for b in bodies],
@@ -312,14 +308,14 @@ class Simulator:
     @staticmethod
     def _record(recorder: FrameRecorder, solver: ImplicitEulerSolver) -> None:
         t0 = time.perf_counter()
-        b = solver.bodies
+        b, state = solver.bodies, solver.state
         per_cubature = [x.cubature_contact() for x in b]
         recorder.record(
-            [x.q for x in b],
-            [x.qdot for x in b],
+            list(state.q),
+            list(state.qdot),
             [f for f, _ in per_cubature],
             [p for _, p in per_cubature],
-            [x.asleep for x in b],
+            state.asleep.tolist(),
             solver.energies(),
             sphere_forces=[x.contact_force_n for x in b],
         )

@@ -10,6 +10,7 @@ import torch
 from data_gen.sim.contact import PairFinder
 from data_gen.sim.presets import load_preset
 from data_gen.sim.solver import NO_PARTNER, ImplicitEulerSolver, SimBody, StepStats
+from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
 from tests.sim.test_sim_batched_terms import _object
 
@@ -80,12 +81,13 @@ def _reference_accumulate(solver, obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, norma
         fa = f_i[sel]
         m = mag[sel]
         ba, bc = solver.bodies[a], solver.bodies[c]
+        c_asleep = solver.state.asleep[c]
         ba.contact_force_n.index_add_(0, li, fa)
-        bc.contact_force_n.index_add_(0, lj, -fa * (solver.h / solver.dt if bc.asleep else 1.0))
+        bc.contact_force_n.index_add_(0, lj, -fa * (solver.h / solver.dt if c_asleep else 1.0))
         _reference_assign_partner(ba, li, m, bc.object_id)
         _reference_assign_partner(bc, lj, m, ba.object_id)
         supported[a] = True
-        if bc.asleep:
+        if c_asleep:
             supported[c] = True
         pos = ((m[:, None] * 0.5 * (xi[sel] + xj[sel])).sum(0) / m.sum()).numpy()
         nrm = (m[:, None] * normal_ji[sel]).sum(0).numpy()
@@ -97,7 +99,7 @@ def _reference_accumulate(solver, obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, norma
 
 
 def _bookkeeping_solver(rng, num_points, asleep, h_s, dt_s):
-    """A solver holding only what the force bookkeeping reads: bodies with per-sphere records."""
+    """A solver holding only what the force bookkeeping reads: bodies with per-sphere records, sleep flags."""
     solver = object.__new__(ImplicitEulerSolver)
     solver.bodies = []
     for k, (n, sleeping) in enumerate(zip(num_points, asleep, strict=True)):
@@ -106,13 +108,14 @@ def _bookkeeping_solver(rng, num_points, asleep, h_s, dt_s):
         solver.bodies.append(
             SimpleNamespace(
                 object_id=k + 1,
-                asleep=sleeping,
                 contact=SimpleNamespace(num_points=n),
                 contact_force_n=force,
                 partner_strength_n=strength,
                 contact_partner=torch.where(strength > 0, 0, NO_PARTNER),
             )
         )
+    empty = [torch.zeros(0, dtype=torch.float64) for _ in num_points]
+    solver.state = State(empty, list(empty), np.array(asleep), np.zeros(len(num_points), dtype=np.int64))
     solver.h, solver.dt = h_s, dt_s
     solver._object_id = np.array([b.object_id for b in solver.bodies])
     return solver
@@ -170,13 +173,15 @@ def test_pair_bookkeeping_without_active_pairs_changes_nothing():
 def _solver(handles=(1, 3, 2, 1)):
     """A solver over small random objects (1..3 handles) at random states."""
     gen = torch.Generator().manual_seed(11)
-    bodies = []
+    bodies, qs, qdots = [], [], []
     for k, h in enumerate(handles):
         model, contact = _object(h, seed=k)
-        q = 0.05 * torch.randn(model.num_dofs, generator=gen, dtype=torch.float64)
-        qdot = torch.randn(model.num_dofs, generator=gen, dtype=torch.float64)
-        bodies.append(SimBody(k + 1, f"o{k}", model, contact, 0.5, q, qdot))
-    return ImplicitEulerSolver(bodies, StaticScene(), np.array([0.0, 0.0, -9.81]), load_preset("draft"), 0.01)
+        qs.append(0.05 * torch.randn(model.num_dofs, generator=gen, dtype=torch.float64))
+        qdots.append(torch.randn(model.num_dofs, generator=gen, dtype=torch.float64))
+        bodies.append(SimBody(k + 1, f"o{k}", model, contact, 0.5))
+    return ImplicitEulerSolver(
+        bodies, State.awake(qs, qdots), StaticScene(), np.array([0.0, 0.0, -9.81]), load_preset("draft"), 0.01
+    )
 
 
 def test_solve_setup_gathers_the_states_of_each_object_and_is_reused():
@@ -188,8 +193,8 @@ def test_solve_setup_gathers_the_states_of_each_object_and_is_reused():
     k = solver.model.columns
     for slot, o in enumerate(setup.objects):  # the per-object reference: each q at its padded positions
         ref, ref_dot = torch.zeros(3 * k, dtype=torch.float64), torch.zeros(3 * k, dtype=torch.float64)
-        ref[solver._padded_index[o]] = solver.bodies[o].q
-        ref_dot[solver._padded_index[o]] = solver.bodies[o].qdot
+        ref[solver._padded_index[o]] = solver.state.q[o]
+        ref_dot[solver._padded_index[o]] = solver.state.qdot[o]
         assert torch.equal(tm[slot].reshape(-1), ref) and torch.equal(tmdot[slot].reshape(-1), ref_dot)
     assert setup.objects == [0, 2, 1, 3] and list(setup.slot_of) == [0, 2, 1, 3]
     assert torch.equal(setup.layout.island, torch.tensor([0, 0, 1, 2]))
