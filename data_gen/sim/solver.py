@@ -33,8 +33,13 @@ Layout (as in warp's and Newton's simulators): the fixed description of the obje
 energy terms live in :mod:`data_gen.sim.energy` (summed by :class:`StepObjective`), and the dynamic state
 (reduced coordinates ``q``, rates ``qdot``, sleep flags and slow-step counts) is the solver's one
 :class:`~data_gen.sim.state.State`, ``ImplicitEulerSolver.state``: every step reads it and replaces the
-entries of the objects it solved.  A :class:`SimBody` holds one object's fixed description and the
-step's contact force bookkeeping, no state.
+entries of the objects it solved.  The broad phase is outside the solver:
+:class:`~data_gen.sim.contacts.BroadPhase` (``ImplicitEulerSolver.broad_phase``, built once: the per-sphere
+tables ``offsets``, ``point_object``, ``radii_all`` and the hash grid) finds each step's candidate sphere
+pairs and object pairs and, once the solver has woken sleepers, the islands: the step's
+:class:`~data_gen.sim.contacts.Contacts`.  The solver then sub-steps, minimises (:func:`minimise`) and
+records forces.  A :class:`SimBody` holds one object's fixed description and the step's contact force
+bookkeeping, no state.
 """
 
 from __future__ import annotations
@@ -46,8 +51,9 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 import torch
 
-from data_gen.sim.contact import PairFinder, pair_contact
+from data_gen.sim.contact import pair_contact
 from data_gen.sim.contact_points import ContactPoints
+from data_gen.sim.contacts import BroadPhase, Contacts
 from data_gen.sim.energy import point_terms
 from data_gen.sim.energy.pair_contact import FROZEN, PairSet
 from data_gen.sim.energy.scene_sdf import SceneDistance
@@ -253,14 +259,7 @@ class ImplicitEulerSolver:
         self.gravity = torch.as_tensor(np.asarray(gravity_m_s2, dtype=np.float64))
         self.preset = preset
         self.dt = float(dt_s)
-        self.finder = PairFinder(device=device)
-        self.offsets = np.cumsum([0] + [b.contact.num_points for b in bodies])
-        self.point_object = (
-            np.concatenate([np.full(b.contact.num_points, k) for k, b in enumerate(bodies)])
-            if bodies
-            else np.zeros(0, dtype=np.int64)
-        )
-        self.radii_all = torch.cat([b.radius_m for b in bodies]) if bodies else torch.zeros(0)
+        self.broad_phase = BroadPhase([b.contact for b in bodies], float(self.gravity.norm()), device)
         self.h = self.dt  # current (sub)step, s
         self.step_index = 0
         self.timings: dict[str, float] = {"broad_phase": 0.0, "newton": 0.0}
@@ -270,7 +269,6 @@ class ImplicitEulerSolver:
         self.scene_distance = SceneDistance(scene)
         self._padded_index = [padded_index(b.model.num_handles, self.model.columns) for b in bodies]
         self._median_radius_m = [float(b.radius_m.median()) for b in bodies]
-        self._gravity_m_s2 = float(self.gravity.norm())
         self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
         self._groups: OrderedDict[tuple[tuple[int, ...], ...], _GroupSetup] = OrderedDict()
         self._groups_bytes = 0
@@ -302,8 +300,10 @@ class ImplicitEulerSolver:
     def step(self) -> StepStats:
         """Advance all objects by ``dt_s``; raises SimulationError on non-finite values.
 
-        Contact candidates are found once per step (hash grid, margin covering the step's motion) and
-        split the awake objects into islands.  Each island near contact is split into sub-steps so that
+        The broad phase (:class:`~data_gen.sim.contacts.BroadPhase`, once per step: hash grid, margin
+        covering the step's motion) finds the contact candidates; sleepers in candidate contact with a fast
+        object are woken, then the candidates split the awake objects into islands (the step's
+        :class:`~data_gen.sim.contacts.Contacts`).  Each island near contact is split into sub-steps so that
         none of its contact spheres moves more than ``PAIR_REACH_RADII`` contact radii per sub-step (at
         most ``preset.max_contact_substeps`` unless needed): penalty contact cannot stop a sphere that jumps past its
         partner within one step.  Islands in free flight take the full step.
@@ -313,12 +313,13 @@ class ImplicitEulerSolver:
         t0 = time.perf_counter()
         positions = self._contact_positions()
         speeds = [None if asleep else self._max_speed(k) for k, asleep in enumerate(self.state.asleep)]
-        pairs = self._candidate_pairs(positions, moving=True)
+        pairs = self.broad_phase.candidates(positions, self._sphere_velocity_list(), self.h)
         self.timings["broad_phase"] += time.perf_counter() - t0
-        stats.candidate_pairs = len(pairs)
-        object_pairs = self._object_pairs(pairs)
-        self._wake(object_pairs, speeds)
-        islands = self._islands(object_pairs)
+        object_pairs = self.broad_phase.object_pairs(pairs)
+        self._wake(object_pairs, speeds)  # changes the sleep flags the islands are built from
+        contacts = self.broad_phase.contacts(pairs, object_pairs, self.state.asleep)
+        islands = contacts.islands
+        stats.candidate_pairs = len(contacts.pairs)
         stats.islands = len(islands)
         stats.awake_objects = sum(len(isl) for isl in islands)
         for b, asleep in zip(self.bodies, self.state.asleep):
@@ -327,13 +328,13 @@ class ImplicitEulerSolver:
             b.reset_step_forces()
         supported = np.zeros(len(self.bodies), dtype=bool)
         by_substeps: dict[int, list[list[int]]] = {}
-        for island, num_sub in zip(islands, self._island_substeps(islands, positions, object_pairs, speeds)):
+        for island, num_sub in zip(islands, self._island_substeps(contacts, positions, speeds)):
             by_substeps.setdefault(num_sub, []).append(island)  # islands that need the same sub-steps: one solve
         for num_sub, group in sorted(by_substeps.items()):
             stats.substeps = max(stats.substeps, num_sub)
             self.h = self.dt / num_sub
             members = [k for island in group for k in island]
-            member_pairs = self._member_pairs(members, pairs)
+            member_pairs = self._member_pairs(members, contacts.pairs)
             for _ in range(num_sub):
                 t0 = time.perf_counter()
                 pair_set = self._island_pairs(*member_pairs, positions)
@@ -342,7 +343,7 @@ class ImplicitEulerSolver:
                     positions[k] = self.bodies[k].contact_positions(self.state.q[k])
                 self.timings["newton"] += time.perf_counter() - t0
         self.h = self.dt
-        self._record_sleeping_contacts(pairs, positions, stats)
+        self._record_sleeping_contacts(contacts.pairs, positions, stats)
         self._update_sleep(islands, supported)
         self.step_index += 1
         return stats
@@ -364,22 +365,28 @@ class ImplicitEulerSolver:
         """Fastest contact sphere of object k, m/s."""
         return self._sphere_velocities(k)[1]
 
+    def _sphere_velocity_list(self) -> list[torch.Tensor | None]:
+        """Per object: its contact sphere velocities (k, 3) m/s at the current rate, None if asleep (what
+        the broad phase's reach reads)."""
+        asleep = self.state.asleep
+        return [None if asleep[k] else self._sphere_velocities(k)[0] for k in range(len(self.bodies))]
+
     def _island_substeps(
         self,
-        islands: list[list[int]],
+        contacts: Contacts,
         positions: list[torch.Tensor],
-        object_pairs: np.ndarray,
         speeds: list[float | None],
     ) -> list[int]:
-        """Per island: sub-steps so that no point moves more than PAIR_REACH_RADII radii (near another
-        object) or SCENE_REACH_RADII radii (near the static scene only) per sub-step.
+        """Per island of ``contacts``: sub-steps so that no point moves more than PAIR_REACH_RADII radii
+        (near another object) or SCENE_REACH_RADII radii (near the static scene only) per sub-step.
 
         The radius is the object's median contact radius (tiny spheres fitted into edges are covered by
         their neighbours).  Usually at most ``preset.max_contact_substeps``; beyond that cap only when
         the reach demands it, up to ``HARD_SUBSTEP_LIMIT``.  ``speeds``: the objects' fastest sphere (m/s)
         at the start of the step, None for those asleep then.  The objects without object candidates
         query the scene together, once."""
-        paired = set(object_pairs.ravel().tolist())
+        islands = contacts.islands
+        paired = set(contacts.object_pairs.ravel().tolist())
         reach = {
             k: (self._max_speed(k) if speeds[k] is None else speeds[k]) * self.dt
             for island in islands
@@ -413,11 +420,12 @@ class ImplicitEulerSolver:
         """Contact forces of the current state without stepping (used for the initial frame)."""
         stats = StepStats()
         positions = self._contact_positions()
-        pairs = self._candidate_pairs(positions, moving=False)
+        pairs = self.broad_phase.candidates(positions, None, self.h)
         supported = np.zeros(len(self.bodies), dtype=bool)
         for b in self.bodies:
             b.reset_step_forces()
-        islands = self._islands(self._object_pairs(pairs))
+        bp = self.broad_phase
+        islands = bp.contacts(pairs, bp.object_pairs(pairs), self.state.asleep).islands
         if islands:
             members = [k for island in islands for k in island]
             ps = self._island_pairs(*self._member_pairs(members, pairs), positions)
@@ -438,55 +446,24 @@ class ImplicitEulerSolver:
                 [torch.full((b.contact.num_points,), self.stiffness(k), dtype=DTYPE) for k, b in enumerate(self.bodies)]
             )
             energy, _, _ = point_terms.penalty(
-                self.radii_all - torch.from_numpy(sdf), torch.from_numpy(normal), stiffness, False
+                self.broad_phase.radii_all - torch.from_numpy(sdf), torch.from_numpy(normal), stiffness, False
             )
             for part in energy.split([b.contact.num_points for b in self.bodies]):  # loop over objects
                 con += float(part.sum())
-        pairs = self._candidate_pairs(positions, moving=False)
+        pairs = self.broad_phase.candidates(positions, None, self.h)
         if len(pairs):
-            oi, oj = self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]
+            point_object, radii_all = self.broad_phase.point_object, self.broad_phase.radii_all
+            oi, oj = point_object[pairs[:, 0]], point_object[pairs[:, 1]]
             x_all = torch.cat(positions)
             k = torch.from_numpy(self._pair_tables()[0][oi, oj])
-            rs = self.radii_all[pairs[:, 0]] + self.radii_all[pairs[:, 1]]
+            rs = radii_all[pairs[:, 0]] + radii_all[pairs[:, 1]]
             con += pair_contact(x_all[pairs[:, 0]], x_all[pairs[:, 1]], rs, k).energy
         return {"kinetic": kin, "elastic": ela, "contact": con, "gravity": grav}
 
-    # ------------------------------------------------------------------ broad phase, islands, sleep
+    # ------------------------------------------------------------------ sphere positions, waking, sleep
     def _contact_positions(self) -> list[torch.Tensor]:
         """Per object: (k,3) world contact sphere centres, m, of the current state."""
         return [b.contact_positions(q) for b, q in zip(self.bodies, self.state.q)]
-
-    def _candidate_pairs(self, positions: list[torch.Tensor], moving: bool) -> np.ndarray:
-        """Sphere pairs on different objects that may touch during the coming step (``moving``) or
-        touch now, within a quarter radius (not moving: forces and energies of the current state)."""
-        if len(self.bodies) < 2:
-            return np.zeros((0, 2), dtype=np.int64)
-        x_all = torch.cat(positions).numpy()
-        r_max = float(self.radii_all.max())
-        reach = self._reach(self.h) if moving else None
-        return self.finder.find(x_all, self.point_object, self.radii_all.numpy(), 0.25 * r_max, reach)
-
-    def _reach(self, h: float) -> np.ndarray:
-        """Per contact sphere (all objects, global order): how far it may close in on another in a step of
-        h seconds, m.  Two points close in by at most h |v_i - v_j| <= h (|v_i - u| + |v_j - u|) for
-        any common velocity u; u = the mean point velocity keeps the bound tight for objects falling
-        together.  1.5 x that (velocities change within the step) plus what gravity adds."""
-        velocity = torch.cat(
-            [
-                torch.zeros(b.contact.num_points, 3, dtype=DTYPE) if asleep else self._sphere_velocities(k)[0]
-                for k, (b, asleep) in enumerate(zip(self.bodies, self.state.asleep))
-            ]
-        )
-        relative_speed = (velocity - velocity.mean(0)).norm(dim=1).numpy()
-        return 1.5 * relative_speed * h + self._gravity_m_s2 * h**2
-
-    def _object_pairs(self, pairs: np.ndarray) -> np.ndarray:
-        """The distinct object pairs (a, c) of candidate point pairs, sorted lexicographically (a < c)."""
-        n = len(self.bodies)
-        linked = np.zeros((n, n), dtype=bool)
-        if len(pairs):
-            linked[self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]] = True
-        return np.argwhere(linked)
 
     def _wake(self, object_pairs: np.ndarray, speeds: list[float | None]) -> None:
         """Wake sleepers in candidate contact with an object that was awake at the start of the step and is
@@ -504,26 +481,6 @@ class ImplicitEulerSolver:
                 ):
                     asleep[sleeper] = False
                     slow_steps[sleeper] = 0
-
-    def _islands(self, object_pairs: np.ndarray) -> list[list[int]]:
-        """Awake objects linked by object candidate pairs, each island sorted, islands by smallest member."""
-        parent = list(range(len(self.bodies)))
-
-        def root(k: int) -> int:
-            while parent[k] != k:
-                parent[k] = parent[parent[k]]
-                k = parent[k]
-            return k
-
-        asleep = self.state.asleep
-        for a, c in object_pairs:
-            if not asleep[a] and not asleep[c]:
-                parent[root(a)] = root(c)
-        groups: dict[int, list[int]] = {}
-        for k in range(len(self.bodies)):
-            if not asleep[k]:
-                groups.setdefault(root(k), []).append(k)
-        return [sorted(g) for _, g in sorted(groups.items(), key=lambda item: min(item[1]))]
 
     def _update_sleep(self, islands: list[list[int]], supported: np.ndarray) -> None:
         """Count the slow, supported steps of the islands' objects; put to sleep (rate zeroed) those slow
@@ -563,7 +520,7 @@ class ImplicitEulerSolver:
         is_member = np.zeros(len(self.bodies), dtype=bool)
         is_member[members] = True
         sel = pairs if len(pairs) else np.zeros((0, 2), dtype=np.int64)
-        inside = is_member[self.point_object[sel]]  # (P, 2)
+        inside = is_member[self.broad_phase.point_object[sel]]  # (P, 2)
         touching = inside.any(axis=1)
         sel = sel[touching]
         swap = ~inside[touching, 0]  # orient every pair so that side i is an island member
@@ -572,22 +529,19 @@ class ImplicitEulerSolver:
     def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor]) -> _PairSet:
         """The pair set of a (sub)step from the members' candidate pairs (:meth:`_member_pairs`) and the
         current sphere positions (m)."""
+        bp = self.broad_phase
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
         if len(gi) and self.h < self.dt:
             # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
-            x_np = x_all.numpy()
-            reach = self._reach(self.h)
-            radii = self.radii_all.numpy()
-            gap = np.linalg.norm(x_np[gi] - x_np[gj], axis=1) - radii[gi] - radii[gj]
-            near = gap < reach[gi] + reach[gj] + 0.25 * float(radii.max())
+            near = bp.within_reach(gi, gj, x_all.numpy(), self._sphere_velocity_list(), self.h)
             gi, gj = gi[near], gj[near]
-        oi, oj = self.point_object[gi], self.point_object[gj]
-        li, lj = gi - self.offsets[oi], gj - self.offsets[oj]
+        oi, oj = bp.point_object[gi], bp.point_object[gj]
+        li, lj = gi - bp.offsets[oi], gj - bp.offsets[oj]
         stiffness, friction = self._pair_tables()
         k = torch.from_numpy(stiffness[oi, oj])
         mu = torch.from_numpy(friction[oi, oj])
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
-        rs = self.radii_all[gi_t] + self.radii_all[gj_t]
+        rs = bp.radii_all[gi_t] + bp.radii_all[gj_t]
         x0i, x0j = x_all[gi_t], x_all[gj_t]
         start = pair_contact(x0i, x0j, rs, k) if len(gi) else None
         lam = (k * start.depth_m.clamp(min=0.0)) if start is not None else torch.zeros(0, dtype=DTYPE)
@@ -780,7 +734,8 @@ class ImplicitEulerSolver:
                 stats.add_pair_force((b.object_id, 0), *b.static_summary, self.h)
         if not len(pairs):
             return
-        oi, oj = self.point_object[pairs[:, 0]], self.point_object[pairs[:, 1]]
+        bp = self.broad_phase
+        oi, oj = bp.point_object[pairs[:, 0]], bp.point_object[pairs[:, 1]]
         both = asleep[oi] & asleep[oj]
         if not both.any():
             return
@@ -791,12 +746,12 @@ class ImplicitEulerSolver:
         k = torch.from_numpy(
             self.preset.contact_stiffness_factor * np.minimum(mass[oi], mass[oj]) / self.h**2
         )
-        pc = pair_contact(x_all[gi], x_all[gj], self.radii_all[gi] + self.radii_all[gj], k)
+        pc = pair_contact(x_all[gi], x_all[gj], bp.radii_all[gi] + bp.radii_all[gj], k)
         self._accumulate_pair_forces(
             oi,
-            gi - self.offsets[oi],
+            gi - bp.offsets[oi],
             oj,
-            gj - self.offsets[oj],
+            gj - bp.offsets[oj],
             x_all[gi],
             x_all[gj],
             -pc.grad_i,

@@ -1,4 +1,5 @@
-"""The solver's vectorised bookkeeping, its cached solve set-up and the grouped broad phase equal their plain
+"""The solver's vectorised bookkeeping, its cached solve set-up and the grouped broad phase (the pair search
+and the object pairs of the solver's :class:`~data_gen.sim.contacts.BroadPhase`) equal their plain
 definitions."""
 
 from types import SimpleNamespace
@@ -208,12 +209,13 @@ def test_solve_setup_gathers_the_states_of_each_object_and_is_reused():
 
 
 def test_object_pairs_are_the_sorted_distinct_pairs_of_candidates():
-    solver = _solver()
+    broad_phase = _solver().broad_phase  # the solver's broad phase, built from its bodies
+    point_object = broad_phase.point_object
     rng = np.random.default_rng(2)
-    n = len(solver.point_object)
+    n = len(point_object)
     i = rng.integers(0, n, 200)
     j = rng.integers(0, n, 200)
-    keep = solver.point_object[i] < solver.point_object[j]
+    keep = point_object[i] < point_object[j]
     pairs = np.stack([i[keep], j[keep]], 1)
-    np.testing.assert_array_equal(solver._object_pairs(pairs), np.unique(solver.point_object[pairs], axis=0))
-    assert solver._object_pairs(np.zeros((0, 2), dtype=np.int64)).shape == (0, 2)
+    np.testing.assert_array_equal(broad_phase.object_pairs(pairs), np.unique(point_object[pairs], axis=0))
+    assert broad_phase.object_pairs(np.zeros((0, 2), dtype=np.int64)).shape == (0, 2)
