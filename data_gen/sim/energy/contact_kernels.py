@@ -70,6 +70,33 @@ def _friction(slip: wp.vec3d, normal: wp.vec3d, scale: wp.float64, smoothing_m: 
 
 
 @wp.func
+def _penalty_and_friction(
+    depth: wp.float64,
+    normal: wp.vec3d,
+    stiffness: wp.float64,
+    slip: wp.vec3d,
+    frozen_normal: wp.vec3d,
+    mu_lam: wp.float64,
+    smoothing_m: wp.float64,
+):
+    """Energy (J), dE/dx (N) and Hessian (N/m) of one sphere or pair: penalty ``k/2 d^2`` where ``d > 0``
+    along ``normal`` plus lagged friction of ``slip`` in the frozen tangent plane where ``mu lam > 0``."""
+    e = _ZERO
+    g = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    h = wp.mat33d()
+    if depth > _ZERO:
+        e = wp.float64(0.5) * stiffness * depth * depth
+        g = -(stiffness * depth) * normal
+        h = stiffness * wp.outer(normal, normal)
+    if mu_lam > _ZERO:
+        e_f, g_f, h_f = _friction(slip, frozen_normal, mu_lam, smoothing_m)
+        e = e + e_f
+        g = g + g_f
+        h = h + h_f
+    return e, g, h
+
+
+@wp.func
 def _add_gradient(
     grad: wp.array(dtype=wp.float64),
     flat_index: wp.array2d(dtype=wp.int32),
@@ -166,18 +193,7 @@ def scene_contact_kernel(
     mu_lam = friction_scale[o, s]
     if depth <= _ZERO and mu_lam <= _ZERO:
         return
-    e = _ZERO
-    g = wp.vec3d(_ZERO, _ZERO, _ZERO)
-    h = wp.mat33d()
-    if depth > _ZERO:
-        e = wp.float64(0.5) * k * depth * depth
-        g = -(k * depth) * n
-        h = k * wp.outer(n, n)
-    if mu_lam > _ZERO:
-        e_f, g_f, h_f = _friction(x - start_x[o, s], start_normal[o, s], mu_lam, smoothing_m)
-        e = e + e_f
-        g = g + g_f
-        h = h + h_f
+    e, g, h = _penalty_and_friction(depth, n, k, x - start_x[o, s], start_normal[o, s], mu_lam, smoothing_m)
     wp.atomic_add(energy, o, e)
     force_out[o, s] = -g
     normal_out[o, s] = n
@@ -237,19 +253,9 @@ def pair_contact_kernel(
     mu_lam = friction_scale[p]
     if depth <= _ZERO and mu_lam <= _ZERO:
         return
-    k = stiffness[p]
-    e = _ZERO
-    g = wp.vec3d(_ZERO, _ZERO, _ZERO)
-    h = wp.mat33d()
-    if depth > _ZERO:
-        e = wp.float64(0.5) * k * depth * depth
-        g = -(k * depth) * n
-        h = k * wp.outer(n, n)
-    if mu_lam > _ZERO:
-        e_f, g_f, h_f = _friction((xi - x0_i[p]) - (xj - x0_j[p]), normal0[p], mu_lam, smoothing_m)
-        e = e + e_f
-        g = g + g_f
-        h = h + h_f
+    e, g, h = _penalty_and_friction(
+        depth, n, stiffness[p], (xi - x0_i[p]) - (xj - x0_j[p]), normal0[p], mu_lam, smoothing_m
+    )
     wp.atomic_add(energy, oi, e)
     force_out[p] = -g
     normal_out[p] = n
