@@ -32,7 +32,6 @@ import warp as wp
 
 from data_gen.sim.static_scene import _FAR_M, StaticScene, boxes_distance, points_distance
 
-wp.init()
 
 _ZERO = wp.constant(wp.float64(0.0))
 
@@ -311,6 +310,7 @@ class WarpContact:
 
     def __init__(self, scene: StaticScene, columns: torch.Tensor, rest: torch.Tensor, b: torch.Tensor,
                  radius: torch.Tensor, flat_index: torch.Tensor, island_size: int, num_islands: int) -> None:  # fmt: skip
+        wp.init()  # idempotent; not at import, so importing the package prints nothing
         self.torch_device = rest.device
         self.device = "cuda:0" if str(self.torch_device) == "cuda" else str(self.torch_device)
         n, s, k = b.shape

@@ -21,7 +21,6 @@ from __future__ import annotations
 import torch
 import warp as wp
 
-wp.init()
 
 mat99d = wp.types.matrix(shape=(9, 9), dtype=wp.float64)
 
@@ -139,6 +138,7 @@ class WarpNeoHookean:
 
     def __init__(self, columns: torch.Tensor, cub_c: torch.Tensor, volume_m3: torch.Tensor, mu_pa: torch.Tensor,
                  lam_pa: torch.Tensor, tolerance_pa: torch.Tensor) -> None:  # fmt: skip
+        wp.init()  # idempotent; not at import, so importing the package prints nothing
         n, p, k, _ = cub_c.shape
         device = "cuda:0" if str(cub_c.device) == "cuda" else str(cub_c.device)
         like = dict(dtype=cub_c.dtype, device=cub_c.device)
