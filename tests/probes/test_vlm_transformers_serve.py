@@ -8,6 +8,7 @@ Needs the serving extra (``pip install -e .[vlm-serve]``: fastapi, uvicorn, open
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import os
 import shutil
@@ -58,12 +59,10 @@ def test_client_through_transformers_serve(tmp_path: Path) -> None:
     try:
         deadline = time.time() + 180
         while True:
-            try:
+            with contextlib.suppress(OSError):  # not listening yet: poll again
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=2) as r:
                     if r.status == 200:
                         break
-            except OSError:
-                pass
             if proc.poll() is not None or time.time() > deadline:
                 pytest.fail(
                     f"transformers serve did not start: {proc.stderr.read().decode()[-2000:] if proc.stderr else ''}"
