@@ -55,13 +55,13 @@ class SolveWorkspace:
             layout.flat_index, layout.island_size, layout.num_islands,
         )  # fmt: skip
         rigid = model.num_handles == 1
-        self.elastic_groups = [
-            (idx, model.cub_c[idx][:, :width], WarpNeoHookean(
-                4 * model.num_handles[idx], model.cub_c[idx][:, :width], model.cub_volume_m3[idx][:, :width],
-                model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx]))
-            for idx, width in ((torch.nonzero(rigid)[:, 0], 1), (torch.nonzero(~rigid)[:, 0], model.cub_c.shape[1]))
-            if len(idx)
-        ]  # one-handle objects integrate with their single cubature point
+        self.elastic_groups = []  # (objects, bases, kernel); one-handle objects keep their single cubature point
+        for idx, width in ((torch.nonzero(rigid)[:, 0], 1), (torch.nonzero(~rigid)[:, 0], model.cub_c.shape[1])):
+            if len(idx):
+                cub_c = model.cub_c[idx][:, :width]
+                points = WarpNeoHookean(4 * model.num_handles[idx], cub_c, model.cub_volume_m3[idx][:, :width],
+                                        model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx])  # fmt: skip
+                self.elastic_groups.append((idx, cub_c, points))
         n_isl, size = layout.num_islands, layout.island_size
         dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
         self.padding = (torch.arange(size)[None, :] >= dofs[:, None]).to(DTYPE)  # (n_isl, N) unused entries
