@@ -239,6 +239,8 @@ class ImplicitEulerSolver:
             replaces its entries step by step.
         scene: the static scene; gravity_m_s2: (3,) m/s^2; preset: solver settings; dt_s: step, s;
         device: warp device of the broad phase.
+        fused_newton: solve groups of one-handle objects with :class:`~data_gen.sim.fused_newton.FusedNewton`
+            (one warp launch per solve) instead of :func:`~data_gen.sim.newton.minimise`.
     """
 
     def __init__(
@@ -250,6 +252,7 @@ class ImplicitEulerSolver:
         preset: QualityPreset,
         dt_s: float,
         device: str = "cpu",
+        fused_newton: bool = True,
     ) -> None:
         if state.num_objects != len(bodies):
             raise ValueError(f"state holds {state.num_objects} objects for {len(bodies)} bodies")
@@ -259,6 +262,7 @@ class ImplicitEulerSolver:
         self.gravity = torch.as_tensor(np.asarray(gravity_m_s2, dtype=np.float64))
         self.preset = preset
         self.dt = float(dt_s)
+        self.fused_newton = bool(fused_newton)
         self.broad_phase = BroadPhase([b.contact for b in bodies], float(self.gravity.norm()), device)
         self.h = self.dt  # current (sub)step, s
         self.step_index = 0
@@ -643,11 +647,16 @@ class ImplicitEulerSolver:
             )
 
         q0 = layout.to_islands(tm_n + h * tmdot)
-        result = minimise(
-            objective, q0, objective.motion_scale(), objective.trust_radius(),
-            NewtonSettings(self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps),
-            on_gradient=check_gradient, on_indefinite=indefinite,
-        )  # fmt: skip
+        settings = NewtonSettings(
+            self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps
+        )
+        scale, trust = objective.motion_scale(), objective.trust_radius()
+        fused = objective.workspace.fused if self.fused_newton else None
+        result = None if fused is None else fused.solve(objective.tm_pred, self.gravity, objective.h2, q0, scale,
+                                                         trust, settings)  # fmt: skip
+        if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
+            result = minimise(objective, q0, scale, trust, settings, on_gradient=check_gradient,
+                              on_indefinite=indefinite)  # fmt: skip
         for key, value in result.counters.items():
             self.counters[key] += value
         tm = layout.to_objects(result.q)

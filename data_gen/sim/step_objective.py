@@ -24,10 +24,14 @@ from data_gen.sim.energy.inertia import inertia
 from data_gen.sim.energy.pair_contact import PairSet
 from data_gen.sim.energy.scene_contact import contact_start
 from data_gen.sim.energy.terms import ObjectTerms
+from data_gen.sim.fused_newton import FusedNewton
 from data_gen.sim.model import DofLayout, Model
 from data_gen.sim.newton import Evaluation, Objective
 from data_gen.sim.reduced import DTYPE
 from data_gen.sim.energy.scene_sdf import SceneDistance
+
+# largest island (unknowns) solved by FusedNewton: 20 one-handle objects
+FUSED_MAX_ISLAND_DOFS = 240
 
 
 @dataclass
@@ -63,6 +67,12 @@ class SolveWorkspace:
                                         model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx])  # fmt: skip
                 self.elastic_groups.append((idx, cub_c, points))
         n_isl, size = layout.num_islands, layout.island_size
+        # every object one affine handle and islands small enough for one thread's dense Cholesky
+        self.fused = (
+            FusedNewton(model, layout, self.contact)
+            if bool(rigid.all()) and 0 < size <= FUSED_MAX_ISLAND_DOFS
+            else None
+        )
         dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
         self.padding = (torch.arange(size)[None, :] >= dofs[:, None]).to(DTYPE)  # (n_isl, N) unused entries
         self.island_mass_kg = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)

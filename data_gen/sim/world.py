@@ -117,8 +117,10 @@ class Simulator:
         device: str = "cpu",
         skinning_cache_dir: str | None = None,
         num_threads: int = 1,
+        fused_newton: bool = True,
     ) -> None:
         self.num_threads = int(num_threads)
+        self.fused_newton = bool(fused_newton)
         self.scene = static_scene
         self.preset = load_preset(preset) if isinstance(preset, str) else preset
         self.gravity = np.asarray(gravity_m_s2, dtype=np.float64)
@@ -243,7 +245,8 @@ class Simulator:
         ]
         state = State.awake([p.q0.clone() for p in self.prepared], [p.qdot0.clone() for p in self.prepared])
         solver = ImplicitEulerSolver(
-            bodies, state, self.scene, self.gravity, self.preset, dt, device=self.device
+            bodies, state, self.scene, self.gravity, self.preset, dt, device=self.device,
+            fused_newton=self.fused_newton,
         )
         recorder = FrameRecorder(
             [b.name for b in bodies],

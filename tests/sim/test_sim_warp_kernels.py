@@ -20,9 +20,9 @@ from tests.sim.test_sim_batched_terms import _model
 D = torch.float64
 
 
-def _setup(scene: StaticScene, seed: int):
+def _setup(scene: StaticScene, seed: int, handles: tuple[int, int, int] = (1, 3, 2)):
     """Three objects (1, 3 and 2 handles) near the scene; objects 0 and 2 form one island, 1 the other."""
-    objs, model = _model()
+    objs, model = _model(handles)
     gen = torch.Generator().manual_seed(seed)
     k = model.columns
     tm0 = torch.zeros(3, 3, k, dtype=D)

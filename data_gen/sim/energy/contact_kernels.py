@@ -37,7 +37,7 @@ _ZERO = wp.constant(wp.float64(0.0))
 
 
 @wp.func
-def _sphere_position(
+def sphere_position(
     tm: wp.array3d(dtype=wp.float64),
     rest: wp.array2d(dtype=wp.vec3d),
     b: wp.array3d(dtype=wp.float64),
@@ -96,7 +96,7 @@ def _penalty_and_friction(
 
 
 @wp.func
-def _add_gradient(
+def add_gradient(
     grad: wp.array(dtype=wp.float64),
     flat_index: wp.array2d(dtype=wp.int32),
     b: wp.array3d(dtype=wp.float64),
@@ -115,7 +115,7 @@ def _add_gradient(
 
 
 @wp.func
-def _add_block(
+def add_block(
     hess: wp.array(dtype=wp.float64),
     flat_index: wp.array2d(dtype=wp.int32),
     island_size: int,
@@ -142,6 +142,116 @@ def _add_block(
                         for c in range(3):
                             col = int(flat_index[p, c * padded_columns + e])
                             wp.atomic_add(hess, base + col, h[r, c] * w)
+
+
+@wp.func
+def scene_sphere_terms(
+    tm: wp.array3d(dtype=wp.float64),
+    cols: int,
+    rest: wp.array2d(dtype=wp.vec3d),
+    b: wp.array3d(dtype=wp.float64),
+    radius: wp.array2d(dtype=wp.float64),
+    stiffness: wp.array2d(dtype=wp.float64),
+    friction_scale: wp.array2d(dtype=wp.float64),
+    start_x: wp.array2d(dtype=wp.vec3d),
+    start_normal: wp.array2d(dtype=wp.vec3d),
+    smoothing_m: wp.float64,
+    has_ground: int,
+    box_centers: wp.array(dtype=wp.vec3d),
+    box_rotations: wp.array(dtype=wp.mat33d),
+    box_half_extents: wp.array(dtype=wp.vec3d),
+    far_m: wp.float64,
+    has_points: int,
+    grid: wp.uint64,
+    static_points: wp.array(dtype=wp.vec3d),
+    point_radius_m: wp.float64,
+    point_search_m: wp.float64,
+    o: int,
+    s: int,
+):
+    """Scene contact + friction of sphere (o, s): (active, energy J, dE/dx N, Hessian N/m, scene normal);
+    ``active`` is 0 (and the rest zero) for a padded sphere or one that neither penetrates nor carries a
+    frozen normal force."""
+    k = stiffness[o, s]
+    e = _ZERO
+    g = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    h = wp.mat33d()
+    n = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    if k == _ZERO:
+        return 0, e, g, h, n
+    x = sphere_position(tm, rest, b, o, s, cols)
+    sdf, n = boxes_distance(x, has_ground, box_centers, box_rotations, box_half_extents, far_m)
+    if has_points != 0:
+        sdf, n = points_distance(grid, x, static_points, point_radius_m, point_search_m, sdf, n)
+    depth = radius[o, s] - sdf
+    mu_lam = friction_scale[o, s]
+    if depth <= _ZERO and mu_lam <= _ZERO:
+        return 0, e, g, h, n
+    e, g, h = _penalty_and_friction(depth, n, k, x - start_x[o, s], start_normal[o, s], mu_lam, smoothing_m)
+    return 1, e, g, h, n
+
+
+@wp.func
+def pair_terms(
+    tm: wp.array3d(dtype=wp.float64),
+    rest: wp.array2d(dtype=wp.vec3d),
+    b: wp.array3d(dtype=wp.float64),
+    oi: int,
+    si: int,
+    cols_i: int,
+    oj: int,
+    sj: int,
+    cols_j: int,
+    frozen_x_j: wp.vec3d,
+    stiffness: wp.float64,
+    radius_sum: wp.float64,
+    mu_lam: wp.float64,
+    normal0: wp.vec3d,
+    x0_i: wp.vec3d,
+    x0_j: wp.vec3d,
+    smoothing_m: wp.float64,
+):
+    """Pair contact + friction of sphere si of object oi against sphere sj of object oj (or the frozen point
+    ``frozen_x_j`` when ``oj < 0``): (active, energy J, dE/dx_i N, Hessian N/m, unit normal j -> i)."""
+    xi = sphere_position(tm, rest, b, oi, si, cols_i)
+    xj = frozen_x_j
+    if oj >= 0:
+        xj = sphere_position(tm, rest, b, oj, sj, cols_j)
+    delta = xi - xj
+    dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
+    n = delta / dist
+    depth = radius_sum - dist
+    if depth <= _ZERO and mu_lam <= _ZERO:
+        return 0, _ZERO, wp.vec3d(_ZERO, _ZERO, _ZERO), wp.mat33d(), n
+    e, g, h = _penalty_and_friction(depth, n, stiffness, (xi - x0_i) - (xj - x0_j), normal0, mu_lam, smoothing_m)
+    return 1, e, g, h, n
+
+
+@wp.func
+def add_pair_derivatives(
+    grad: wp.array(dtype=wp.float64),
+    hess: wp.array(dtype=wp.float64),
+    flat_index: wp.array2d(dtype=wp.int32),
+    island_size: int,
+    b: wp.array3d(dtype=wp.float64),
+    oi: int,
+    si: int,
+    cols_i: int,
+    oj: int,
+    sj: int,
+    cols_j: int,
+    gs: wp.vec3d,
+    hs: wp.mat33d,
+):
+    """A pair's scaled gradient and Hessian into the island system (side j and cross blocks when j is solved)."""
+    kp = flat_index.shape[1] // 3
+    add_gradient(grad, flat_index, b, oi, si, cols_i, kp, gs)
+    add_block(hess, flat_index, island_size, b, oi, si, cols_i, oi, si, cols_i, kp, hs)
+    if oj >= 0:
+        add_gradient(grad, flat_index, b, oj, sj, cols_j, kp, -gs)
+        add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oj, sj, cols_j, kp, hs)
+        add_block(hess, flat_index, island_size, b, oi, si, cols_i, oj, sj, cols_j, kp, -hs)
+        add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oi, si, cols_i, kp, -hs)
 
 
 @wp.kernel
@@ -180,26 +290,21 @@ def scene_contact_kernel(
     the frozen start. ``force_out`` / ``normal_out`` (n, S): contact + friction force on the sphere (N) and
     the scene normal, written for active spheres (left untouched otherwise)."""
     o, s = wp.tid()
-    k = stiffness[o, s]
-    if k == _ZERO:
-        return
     cols = int(columns[o])
-    x = _sphere_position(tm, rest, b, o, s, cols)
-    sdf, n = boxes_distance(x, has_ground, box_centers, box_rotations, box_half_extents, far_m)
-    if has_points != 0:
-        sdf, n = points_distance(grid, x, static_points, point_radius_m, point_search_m, sdf, n)
-    depth = radius[o, s] - sdf
-    mu_lam = friction_scale[o, s]
-    if depth <= _ZERO and mu_lam <= _ZERO:
+    active, e, g, h, n = scene_sphere_terms(
+        tm, cols, rest, b, radius, stiffness, friction_scale, start_x, start_normal, smoothing_m, has_ground,
+        box_centers, box_rotations, box_half_extents, far_m, has_points, grid, static_points, point_radius_m,
+        point_search_m, o, s,
+    )  # fmt: skip
+    if active == 0:
         return
-    e, g, h = _penalty_and_friction(depth, n, k, x - start_x[o, s], start_normal[o, s], mu_lam, smoothing_m)
     wp.atomic_add(energy, o, e)
     force_out[o, s] = -g
     normal_out[o, s] = n
     if derivatives != 0:
         kp = flat_index.shape[1] // 3
-        _add_gradient(grad, flat_index, b, o, s, cols, kp, scale * g)
-        _add_block(hess, flat_index, island_size, b, o, s, cols, o, s, cols, kp, scale * h)
+        add_gradient(grad, flat_index, b, o, s, cols, kp, scale * g)
+        add_block(hess, flat_index, island_size, b, o, s, cols, o, s, cols, kp, scale * h)
 
 
 @wp.kernel
@@ -239,37 +344,21 @@ def pair_contact_kernel(
     oj = int(obj_j[p])
     sj = int(sph_j[p])
     cols_i = int(columns[oi])
-    xi = _sphere_position(tm, rest, b, oi, si, cols_i)
-    xj = frozen_x_j[p]
     cols_j = int(0)
     if oj >= 0:
         cols_j = int(columns[oj])
-        xj = _sphere_position(tm, rest, b, oj, sj, cols_j)
-    delta = xi - xj
-    dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
-    n = delta / dist
-    depth = radius_sum[p] - dist
-    mu_lam = friction_scale[p]
-    if depth <= _ZERO and mu_lam <= _ZERO:
+    active, e, g, h, n = pair_terms(
+        tm, rest, b, oi, si, cols_i, oj, sj, cols_j, frozen_x_j[p], stiffness[p], radius_sum[p], friction_scale[p],
+        normal0[p], x0_i[p], x0_j[p], smoothing_m,
+    )  # fmt: skip
+    if active == 0:
         return
-    e, g, h = _penalty_and_friction(
-        depth, n, stiffness[p], (xi - x0_i[p]) - (xj - x0_j[p]), normal0[p], mu_lam, smoothing_m
-    )
     wp.atomic_add(energy, oi, e)
     force_out[p] = -g
     normal_out[p] = n
     if derivatives != 0:
-        kp = flat_index.shape[1] // 3
-        gs = scale * g
-        hs = scale * h
-        _add_gradient(grad, flat_index, b, oi, si, cols_i, kp, gs)
-        _add_block(hess, flat_index, island_size, b, oi, si, cols_i, oi, si, cols_i, kp, hs)
-        if oj >= 0:
-            _add_gradient(grad, flat_index, b, oj, sj, cols_j, kp, -gs)
-            _add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oj, sj, cols_j, kp, hs)
-            _add_block(hess, flat_index, island_size, b, oi, si, cols_i, oj, sj, cols_j, kp, -hs)
-            _add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oi, si, cols_i, kp, -hs)
-
+        add_pair_derivatives(grad, hess, flat_index, island_size, b, oi, si, cols_i, oj, sj, cols_j, scale * g,
+                             scale * h)  # fmt: skip
 
 
 def _wp(t: torch.Tensor, dtype=None) -> wp.array:
@@ -311,6 +400,7 @@ class WarpContact:
     def __init__(self, scene: StaticScene, columns: torch.Tensor, rest: torch.Tensor, b: torch.Tensor,
                  radius: torch.Tensor, flat_index: torch.Tensor, island_size: int, num_islands: int) -> None:  # fmt: skip
         wp.init()  # idempotent; not at import, so importing the package prints nothing
+        self.scene = scene
         self.torch_device = rest.device
         self.device = "cuda:0" if str(self.torch_device) == "cuda" else str(self.torch_device)
         n, s, k = b.shape
@@ -356,6 +446,24 @@ class WarpContact:
         self._pair = None
         self._pair_capacity = 0
         self._derivatives, self._smoothing, self._scale = True, 0.0, 1.0
+
+    @property
+    def pair_capacity(self) -> int:
+        """Size of the pair buffers (they are reallocated, doubling, when a solve has more pairs)."""
+        return self._pair_capacity
+
+    @property
+    def smoothing_m(self) -> float:
+        """Friction smoothing eps (m) of the last :meth:`prepare`."""
+        return self._smoothing
+
+    def pair_arrays(self) -> tuple[list[torch.Tensor], list[torch.Tensor], list[torch.Tensor]]:
+        """The pair buffers (valid up to ``num_pairs``): ints (obj_i, sph_i, obj_j, sph_j), vectors (frozen
+        x_j, normal0, x0_i, x0_j) and scalars (stiffness, radius sum, mu lam); allocated (64 pairs) if no
+        solve had pairs yet."""
+        if self._pair is None:
+            self._grow_pairs(1)
+        return self._pair_buffers
 
     def _tail_index(self, inputs: list, offset: int) -> int:
         """Position of ``tail[offset]`` in a kernel's inputs (every kernel ends with tail, force, normal)."""
@@ -448,4 +556,7 @@ class WarpContact:
         )  # fmt: skip
 
 
-__all__ = ["ContactOutputs", "WarpContact", "pair_contact_kernel", "scene_contact_kernel"]
+__all__ = [
+    "ContactOutputs", "WarpContact", "add_block", "add_gradient", "add_pair_derivatives", "pair_contact_kernel",
+    "pair_terms", "scene_contact_kernel", "scene_sphere_terms", "sphere_position",
+]

@@ -47,7 +47,7 @@ def _levi_civita(i: int, k: int):
 
 
 @wp.func
-def _not_positive_definite(h: mat99d, shift: wp.float64):
+def not_positive_definite(h: mat99d, shift: wp.float64):
     """1 when ``h + shift I`` has a non-positive (or NaN) Cholesky pivot, else 0."""
     lower = mat99d()
     bad = int(0)
@@ -67,6 +67,50 @@ def _not_positive_definite(h: mat99d, shift: wp.float64):
                         v = v - lower[i, k] * lower[j, k]
                     lower[i, j] = v / root
     return bad
+
+
+@wp.func
+def deformation_gradient(tm: wp.array3d(dtype=wp.float64), cub_c: wp.array4d(dtype=wp.float64), o: int, i: int,
+                         columns: int):  # fmt: skip
+    """``F = I + Tm C_i`` of cubature point i of object o (its first ``columns`` basis columns)."""
+    f = wp.identity(n=3, dtype=wp.float64)
+    for a in range(columns):
+        for r in range(3):
+            t = tm[o, r, a]
+            for j in range(3):
+                f[r, j] = f[r, j] + t * cub_c[o, i, a, j]
+    return f
+
+
+@wp.func
+def neo_hookean_point(f: wp.mat33d, mu: wp.float64, lam: wp.float64, derivatives: int):
+    """Energy density Psi (J/m^3), first Piola stress P (Pa) and, when ``derivatives``, the 9 x 9 Hessian
+    d2Psi/dF2 (Pa, row-major vec(F); zero otherwise) of the stable neo-Hookean model at ``F``."""
+    lam_s = lam + mu
+    det = wp.determinant(f)
+    jm1 = det - wp.float64(1.0)
+    i1 = wp.ddot(f, f)
+    psi = wp.float64(0.5) * mu * (i1 - wp.float64(3.0)) + wp.float64(0.5) * lam_s * jm1 * jm1 - mu * jm1
+    cof = _cofactor(f)
+    coef = lam_s * jm1 - mu
+    h = mat99d()
+    if derivatives != 0:
+        for row in range(9):
+            ri = row // 3
+            rj = row % 3
+            g_row = cof[ri, rj]
+            for col in range(9):
+                ck = col // 3
+                cl = col % 3
+                value = lam_s * g_row * cof[ck, cl]
+                if ri != ck and rj != cl:
+                    m = 3 - ri - ck
+                    nn = 3 - rj - cl
+                    value = value + coef * _levi_civita(ri, ck) * _levi_civita(rj, cl) * f[m, nn]
+                if row == col:
+                    value = value + mu
+                h[row, col] = value
+    return psi, mu * f + coef * cof, h
 
 
 @wp.kernel
@@ -90,40 +134,13 @@ def neo_hookean_points_kernel(
     v = volume[o, i]
     if v == wp.float64(0.0):
         return
-    f = wp.identity(n=3, dtype=wp.float64)
-    for a in range(int(columns[o])):
-        for r in range(3):
-            t = tm[o, r, a]
-            for j in range(3):
-                f[r, j] = f[r, j] + t * cub_c[o, i, a, j]
-    mu = mu_pa[o]
-    lam_s = lam_pa[o] + mu
-    det = wp.determinant(f)
-    jm1 = det - wp.float64(1.0)
-    i1 = wp.ddot(f, f)
-    energy[o, i] = v * (wp.float64(0.5) * mu * (i1 - wp.float64(3.0)) + wp.float64(0.5) * lam_s * jm1 * jm1 - mu * jm1)
-    cof = _cofactor(f)
-    coef = lam_s * jm1 - mu
-    piola[o, i] = v * (mu * f + coef * cof)
+    f = deformation_gradient(tm, cub_c, o, i, int(columns[o]))
+    psi, piola_i, h = neo_hookean_point(f, mu_pa[o], lam_pa[o], derivatives)
+    energy[o, i] = v * psi
+    piola[o, i] = v * piola_i
     if derivatives == 0:
         return
-    h = mat99d()
-    for row in range(9):
-        ri = row // 3
-        rj = row % 3
-        g_row = cof[ri, rj]
-        for col in range(9):
-            ck = col // 3
-            cl = col % 3
-            value = lam_s * g_row * cof[ck, cl]
-            if ri != ck and rj != cl:
-                m = 3 - ri - ck
-                nn = 3 - rj - cl
-                value = value + coef * _levi_civita(ri, ck) * _levi_civita(rj, cl) * f[m, nn]
-            if row == col:
-                value = value + mu
-            h[row, col] = value
-    needs_projection[o, i] = _not_positive_definite(h, tolerance_pa[o])
+    needs_projection[o, i] = not_positive_definite(h, tolerance_pa[o])
     hess[o, i] = v * h
 
 
@@ -169,4 +186,4 @@ class WarpNeoHookean:
         return self.energy, self.piola, self.hess, self.needs_projection.bool()
 
 
-__all__ = ["WarpNeoHookean", "mat99d", "neo_hookean_points_kernel"]
+__all__ = ["WarpNeoHookean", "deformation_gradient", "mat99d", "neo_hookean_point", "neo_hookean_points_kernel", "not_positive_definite"]

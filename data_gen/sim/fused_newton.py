@@ -1,0 +1,592 @@
+"""A whole implicit Euler (sub)step solve in one warp launch: Newton's method, one thread per island.
+
+:func:`data_gen.sim.newton.minimise` drives a batched torch/warp evaluation from Python; every Newton
+iteration costs a dozen tensor operations and several host reads however small the islands are. On a pile of
+near-rigid objects (one affine handle each, 12 unknowns) that per-iteration overhead, not arithmetic,
+dominated. This module runs the same algorithm compiled: each island's thread evaluates its objective,
+gradient and Newton matrix (the terms of :mod:`data_gen.sim.step_objective`: inertia, gravity, the
+neo-Hookean cubature sum, scene and pair contact with lagged friction, through the same ``wp.func``\\ s as
+the contact and elastic kernels), factorises the matrix (dense Cholesky, the 1e-10 relative ridge where
+needed), limits the update by the trust radius on contact-sphere motion, runs the Armijo backtracking search
+(then plain decrease for ``EXTRA_HALVINGS`` more halvings) and tests convergence
+(``alpha |dq|_M <= tol scale``; an update already that small is taken whole) exactly as ``minimise`` does.
+
+What it does not do, it hands back: an island whose Newton matrix stays indefinite after the ridge (a
+near-SPD elastic block: ``minimise`` eigen-clamps those), whose elastic block fails the near-SPD test, or
+whose gradient is not finite is marked ``needs_fallback``; :meth:`FusedNewton.solve` then returns None and
+the caller runs ``minimise`` (which projects, or raises the error that names the object). The results
+agree with ``minimise`` to the solver's tolerance, not bit for bit (sums run in another order).
+
+On CPU warp runs the island threads one after another (deterministic); on CUDA each island is one thread,
+so this path suits many small islands; large islands want the batched path.
+"""
+
+from __future__ import annotations
+
+import torch
+import warp as wp
+
+from data_gen.sim.energy.contact_kernels import (
+    WarpContact,
+    add_block,
+    add_gradient,
+    add_pair_derivatives,
+    pair_terms,
+    scene_sphere_terms,
+    sphere_position,
+)
+from data_gen.sim.energy.elastic_kernel import deformation_gradient, neo_hookean_point, not_positive_definite
+from data_gen.sim.model import DofLayout, Model
+from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
+from data_gen.sim.static_scene import _FAR_M
+
+wp.set_module_options({"enable_backward": False})  # forward only: no adjoint code to compile
+
+_ZERO = wp.constant(wp.float64(0.0))
+_ONE = wp.constant(wp.float64(1.0))
+
+# columns of the per-island ``stats`` output
+STATUS, ITERATIONS, CONVERGED, EVALUATIONS, EVALUATIONS_WITH_DERIVATIVES = 0, 1, 2, 3, 4
+LINE_SEARCH_FAILURES, LINE_SEARCH_EXTENDED, TRUST_LIMITED = 5, 6, 7
+NUM_STATS = 8
+# STATUS values
+SOLVED, NEEDS_FALLBACK = 0, 1
+
+
+@wp.struct
+class SceneArgs:
+    """The static scene as the contact ``wp.func``\\ s read it."""
+
+    has_ground: int
+    box_centers: wp.array(dtype=wp.vec3d)
+    box_rotations: wp.array(dtype=wp.mat33d)
+    box_half_extents: wp.array(dtype=wp.vec3d)
+    far_m: wp.float64
+    has_points: int
+    grid: wp.uint64
+    static_points: wp.array(dtype=wp.vec3d)
+    point_radius_m: wp.float64
+    point_search_m: wp.float64
+
+
+@wp.struct
+class Bodies:
+    """The fixed model of a set of objects (padded layout of :class:`data_gen.sim.model.Model`) and its
+    island layout (:class:`data_gen.sim.model.DofLayout`)."""
+
+    columns: wp.array(dtype=wp.int32)  # (n,) 4 H
+    object_start: wp.array(dtype=wp.int32)  # (n_isl + 1,) island i's objects: island_objects[start[i]:start[i+1]]
+    island_objects: wp.array(dtype=wp.int32)  # (n,) the objects sorted by island
+    island_dofs: wp.array(dtype=wp.int32)  # (n_isl,) unpadded DOF count; entries beyond are padding
+    island_of: wp.array(dtype=wp.int32)  # (n,)
+    flat_index: wp.array2d(dtype=wp.int32)  # (n, 3K) position in the flat island vectors
+    island_size: int
+    mass_matrix: wp.array3d(dtype=wp.float64)  # (n, 3K, 3K)
+    mass_b_sum: wp.array2d(dtype=wp.float64)  # (n, K) kg
+    cub_c: wp.array4d(dtype=wp.float64)  # (n, P, K, 3)
+    cub_volume: wp.array2d(dtype=wp.float64)  # (n, P) m^3
+    mu_pa: wp.array(dtype=wp.float64)
+    lam_pa: wp.array(dtype=wp.float64)
+    spd_tolerance_pa: wp.array(dtype=wp.float64)
+    rest: wp.array2d(dtype=wp.vec3d)  # (n, S) sphere centres at rest, m
+    b: wp.array3d(dtype=wp.float64)  # (n, S, K)
+    radius: wp.array2d(dtype=wp.float64)  # (n, S) m
+
+
+@wp.struct
+class StepData:
+    """One (sub)step's data: the predicted state, gravity, h^2 and the frozen contact start (the buffers of
+    :class:`data_gen.sim.energy.contact_kernels.WarpContact` after ``prepare``)."""
+
+    tm_pred: wp.array3d(dtype=wp.float64)  # (n, 3, K)
+    gravity: wp.vec3d  # m/s^2
+    h2: wp.float64  # s^2
+    smoothing_m: wp.float64
+    stiffness: wp.array2d(dtype=wp.float64)  # (n, S) N/m, 0 on padding
+    friction_scale: wp.array2d(dtype=wp.float64)  # (n, S) mu lam, N
+    start_x: wp.array2d(dtype=wp.vec3d)
+    start_normal: wp.array2d(dtype=wp.vec3d)
+    num_pairs: int
+    obj_i: wp.array(dtype=wp.int32)
+    sph_i: wp.array(dtype=wp.int32)
+    obj_j: wp.array(dtype=wp.int32)
+    sph_j: wp.array(dtype=wp.int32)
+    frozen_x_j: wp.array(dtype=wp.vec3d)
+    pair_stiffness: wp.array(dtype=wp.float64)
+    radius_sum: wp.array(dtype=wp.float64)
+    pair_friction_scale: wp.array(dtype=wp.float64)
+    normal0: wp.array(dtype=wp.vec3d)
+    x0_i: wp.array(dtype=wp.vec3d)
+    x0_j: wp.array(dtype=wp.vec3d)
+
+
+@wp.func
+def _load_state(bd: Bodies, q: wp.array(dtype=wp.float64), tm: wp.array3d(dtype=wp.float64), isl: int):
+    """Island vector ``q`` -> padded states ``tm`` of the island's objects."""
+    kp = bd.flat_index.shape[1] // 3
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        for r in range(3):
+            for a in range(bd.columns[o]):
+                tm[o, r, a] = q[bd.flat_index[o, r * kp + a]]
+
+
+@wp.func
+def _evaluate(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    tm: wp.array3d(dtype=wp.float64),
+    isl: int,
+    derivatives: int,
+    grad: wp.array(dtype=wp.float64),
+    hess: wp.array(dtype=wp.float64),
+):
+    """Objective of island ``isl`` at the states ``tm`` (J); with ``derivatives`` its gradient and Newton
+    matrix are written into the island's part of ``grad`` / ``hess``. Returns (value, 1 if an elastic block
+    failed the near-SPD test else 0)."""
+    n_size = bd.island_size
+    kp = bd.flat_index.shape[1] // 3
+    start = isl * n_size
+    if derivatives != 0:
+        for r in range(n_size):
+            grad[start + r] = _ZERO
+            for c in range(n_size):
+                hess[start * n_size + r * n_size + c] = _ZERO
+        for r in range(bd.island_dofs[isl], n_size):  # padding: identity rows, zero gradient
+            hess[start * n_size + r * n_size + r] = _ONE
+    h2 = st.h2
+    value = _ZERO
+    flagged = int(0)
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        cols = bd.columns[o]
+        # inertia 1/2 d^T M d with d = tm - tm_pred, gravity -g . Tm sum_p m_p b_p (times h^2)
+        for r in range(3):
+            for a in range(cols):
+                row = r * kp + a
+                m_d = _ZERO
+                for s in range(3):
+                    for c in range(cols):
+                        col = s * kp + c
+                        m_d = m_d + bd.mass_matrix[o, row, col] * (tm[o, s, c] - st.tm_pred[o, s, c])
+                value = value + wp.float64(0.5) * (tm[o, r, a] - st.tm_pred[o, r, a]) * m_d
+                value = value - h2 * st.gravity[r] * tm[o, r, a] * bd.mass_b_sum[o, a]
+                if derivatives != 0:
+                    fr = bd.flat_index[o, row]
+                    grad[fr] = grad[fr] + m_d - h2 * st.gravity[r] * bd.mass_b_sum[o, a]
+                    base = fr * n_size - isl * n_size
+                    for s in range(3):
+                        for c in range(cols):
+                            fc = bd.flat_index[o, s * kp + c]
+                            hess[base + fc] = hess[base + fc] + bd.mass_matrix[o, row, s * kp + c]
+        # neo-Hookean cubature sum (h^2 V Psi(F_i))
+        for i in range(bd.cub_volume.shape[1]):
+            v = bd.cub_volume[o, i]
+            if v != _ZERO:
+                f = deformation_gradient(tm, bd.cub_c, o, i, cols)
+                psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], derivatives)
+                value = value + h2 * v * psi
+                if derivatives != 0:
+                    if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:
+                        flagged = int(1)
+                    w = h2 * v
+                    for r in range(3):
+                        for a in range(cols):
+                            fr = bd.flat_index[o, r * kp + a]
+                            g_ra = _ZERO
+                            for j in range(3):
+                                g_ra = g_ra + piola[r, j] * bd.cub_c[o, i, a, j]
+                            grad[fr] = grad[fr] + w * g_ra
+                            base = fr * n_size - isl * n_size
+                            for s in range(3):
+                                for c in range(cols):
+                                    k_v = _ZERO
+                                    for j in range(3):
+                                        caj = bd.cub_c[o, i, a, j]
+                                        for l in range(3):
+                                            k_v = k_v + h9[r * 3 + j, s * 3 + l] * caj * bd.cub_c[o, i, c, l]
+                                    fc = bd.flat_index[o, s * kp + c]
+                                    hess[base + fc] = hess[base + fc] + w * k_v
+        # scene contact + friction of every sphere
+        for s in range(bd.radius.shape[1]):
+            active, e, g, h, normal = scene_sphere_terms(
+                tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x, st.start_normal,
+                st.smoothing_m, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m,
+                sc.has_points, sc.grid, sc.static_points, sc.point_radius_m, sc.point_search_m, o, s,
+            )  # fmt: skip
+            if active != 0:
+                value = value + h2 * e
+                if derivatives != 0:
+                    add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
+                    add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, kp, h2 * h)
+    # pair contact + friction of the island's candidate pairs (side i on one of its objects)
+    for p in range(st.num_pairs):
+        oi = st.obj_i[p]
+        if bd.island_of[oi] == isl:
+            oj = st.obj_j[p]
+            cols_i = bd.columns[oi]
+            cols_j = int(0)
+            if oj >= 0:
+                cols_j = bd.columns[oj]
+            si = st.sph_i[p]
+            sj = st.sph_j[p]
+            active, e, g, h, normal = pair_terms(
+                tm, bd.rest, bd.b, oi, si, cols_i, oj, sj, cols_j, st.frozen_x_j[p], st.pair_stiffness[p],
+                st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p], st.x0_j[p], st.smoothing_m,
+            )  # fmt: skip
+            if active != 0:
+                value = value + h2 * e
+                if derivatives != 0:
+                    add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
+                                         h2 * g, h2 * h)  # fmt: skip
+    return value, flagged
+
+
+@wp.func
+def _cholesky(hess: wp.array(dtype=wp.float64), chol: wp.array(dtype=wp.float64), first: wp.array(dtype=wp.int32),
+              isl: int, n_size: int, ridge: wp.float64):  # fmt: skip
+    """Lower Cholesky factor of ``(H + H^T) / 2 + ridge I`` of island ``isl`` into ``chol``; 1 on success.
+
+    Envelope (profile) factorisation: row i of the factor is zero left of the first non-zero entry of row i
+    of the matrix (``first``), so the products skip what lies outside; a pile's objects touch their
+    neighbours only, and its matrix is nearly block-banded."""
+    base = isl * n_size * n_size
+    start = isl * n_size
+    for i in range(n_size):
+        f = i
+        for c in range(i):
+            if f == i:
+                if hess[base + i * n_size + c] != _ZERO or hess[base + c * n_size + i] != _ZERO:
+                    f = c
+        first[start + i] = f
+    for j in range(n_size):
+        fj = first[start + j]
+        d = hess[base + j * n_size + j] + ridge
+        for k in range(fj, j):
+            d = d - chol[base + j * n_size + k] * chol[base + j * n_size + k]
+        if not (d > _ZERO):
+            return 0
+        root = wp.sqrt(d)
+        chol[base + j * n_size + j] = root
+        for i in range(j + 1, n_size):
+            fi = first[start + i]
+            if fi > j:
+                chol[base + i * n_size + j] = _ZERO
+            else:
+                v = wp.float64(0.5) * (hess[base + i * n_size + j] + hess[base + j * n_size + i])
+                for k in range(wp.max(fi, fj), j):
+                    v = v - chol[base + i * n_size + k] * chol[base + j * n_size + k]
+                chol[base + i * n_size + j] = v / root
+    return 1
+
+
+@wp.func
+def _newton_direction(chol: wp.array(dtype=wp.float64), first: wp.array(dtype=wp.int32),
+                      grad: wp.array(dtype=wp.float64), dq: wp.array(dtype=wp.float64), isl: int, n_size: int):  # fmt: skip
+    """``dq = -(L L^T)^-1 grad`` of island ``isl`` (``L`` from :func:`_cholesky`, zero left of ``first``)."""
+    base = isl * n_size * n_size
+    start = isl * n_size
+    for i in range(n_size):
+        v = -grad[start + i]
+        for k in range(first[start + i], i):
+            v = v - chol[base + i * n_size + k] * dq[start + k]
+        dq[start + i] = v / chol[base + i * n_size + i]
+    for ii in range(n_size):
+        i = n_size - 1 - ii
+        v = dq[start + i]
+        for k in range(i + 1, n_size):
+            if first[start + k] <= i:
+                v = v - chol[base + k * n_size + i] * dq[start + k]
+        dq[start + i] = v / chol[base + i * n_size + i]
+
+
+@wp.func
+def _update_norms(bd: Bodies, dq: wp.array(dtype=wp.float64), isl: int):
+    """(|dq|_M, largest contact-sphere displacement in m) of island ``isl``'s update ``dq``."""
+    kp = bd.flat_index.shape[1] // 3
+    mass2 = _ZERO
+    motion = _ZERO
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        cols = bd.columns[o]
+        for r in range(3):
+            for a in range(cols):
+                row = r * kp + a
+                m_d = _ZERO
+                for s in range(3):
+                    for c in range(cols):
+                        m_d = m_d + bd.mass_matrix[o, row, s * kp + c] * dq[bd.flat_index[o, s * kp + c]]
+                mass2 = mass2 + dq[bd.flat_index[o, row]] * m_d
+        for s in range(bd.radius.shape[1]):
+            u = wp.vec3d(_ZERO, _ZERO, _ZERO)
+            for a in range(cols):
+                ba = bd.b[o, s, a]
+                u = u + ba * wp.vec3d(dq[bd.flat_index[o, a]], dq[bd.flat_index[o, kp + a]],
+                                      dq[bd.flat_index[o, 2 * kp + a]])  # fmt: skip
+            motion = wp.max(motion, wp.length(u))
+    return wp.sqrt(wp.max(mass2, _ZERO)), motion
+
+
+@wp.kernel
+def newton_islands_kernel(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    threshold: wp.array(dtype=wp.float64),
+    trust_m: wp.array(dtype=wp.float64),
+    iterations: int,
+    line_search_steps: int,
+    q: wp.array(dtype=wp.float64),
+    trial_q: wp.array(dtype=wp.float64),
+    tm: wp.array3d(dtype=wp.float64),
+    grad: wp.array(dtype=wp.float64),
+    hess: wp.array(dtype=wp.float64),
+    chol: wp.array(dtype=wp.float64),
+    dq: wp.array(dtype=wp.float64),
+    first: wp.array(dtype=wp.int32),
+    stats: wp.array2d(dtype=wp.int32),
+):
+    """Island ``isl``: Newton's method from ``q`` (its part of the flat island vectors, overwritten with the
+    result); ``stats`` (n_isl, NUM_STATS) receives the status and counters."""
+    isl = wp.tid()
+    n_size = bd.island_size
+    start = isl * n_size
+    thr = threshold[isl]
+    trust = trust_m[isl]
+    have = int(0)  # derivatives at q already in grad / hess (from an accepted first trial)
+    value = _ZERO
+    for k in range(NUM_STATS):
+        stats[isl, k] = 0
+    for it in range(iterations):
+        if have == 0:
+            _load_state(bd, q, tm, isl)
+            value, flagged = _evaluate(bd, sc, st, tm, isl, 1, grad, hess)
+            stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
+            if flagged != 0:
+                stats[isl, STATUS] = NEEDS_FALLBACK
+                return
+        have = int(0)
+        finite = int(1)
+        biggest = _ZERO
+        for r in range(n_size):
+            if not wp.isfinite(grad[start + r]):
+                finite = int(0)
+            biggest = wp.max(biggest, wp.abs(hess[start * n_size + r * n_size + r]))
+        if finite == 0 or not wp.isfinite(value):
+            stats[isl, STATUS] = NEEDS_FALLBACK
+            return
+        if _cholesky(hess, chol, first, isl, n_size, _ZERO) == 0:
+            if _cholesky(hess, chol, first, isl, n_size, wp.float64(1e-10) * biggest) == 0:
+                stats[isl, STATUS] = NEEDS_FALLBACK  # minimise projects every elastic block of the island
+                return
+        _newton_direction(chol, first, grad, dq, isl, n_size)
+        stats[isl, ITERATIONS] += 1
+        mass, motion = _update_norms(bd, dq, isl)
+        alpha = wp.min(trust / wp.max(motion, wp.float64(1e-300)), _ONE)
+        if alpha < _ONE:
+            stats[isl, TRUST_LIMITED] += 1
+        if alpha >= _ONE and mass <= thr:  # already below the tolerance: taken whole, converged
+            for r in range(n_size):
+                q[start + r] = q[start + r] + dq[start + r]
+            stats[isl, CONVERGED] = 1
+            return
+        slope = _ZERO
+        for r in range(n_size):
+            slope = slope + grad[start + r] * dq[start + r]
+        accepted = int(0)
+        for t in range(line_search_steps + EXTRA_HALVINGS):
+            for r in range(n_size):
+                trial_q[start + r] = q[start + r] + alpha * dq[start + r]
+            _load_state(bd, trial_q, tm, isl)
+            with_derivatives = int(0)
+            if t == 0:
+                with_derivatives = int(1)  # with derivatives: when taken, the next iteration starts from them
+                stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
+            else:
+                stats[isl, EVALUATIONS] += 1
+            trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess)
+            ok = int(0)
+            if t < line_search_steps:
+                if trial <= value + wp.float64(ARMIJO_C) * alpha * slope + wp.float64(1e-14) * wp.abs(value):
+                    ok = int(1)
+            elif trial < value:
+                ok = int(1)
+                stats[isl, LINE_SEARCH_EXTENDED] += 1
+            if ok != 0:
+                accepted = int(1)
+                if with_derivatives != 0 and flagged == 0:
+                    have = int(1)
+                    value = trial
+                break
+            alpha = wp.float64(0.5) * alpha
+        if accepted == 0:  # no decrease along dq: the island stops where it is, unconverged
+            stats[isl, LINE_SEARCH_FAILURES] += 1
+            return
+        for r in range(n_size):
+            q[start + r] = trial_q[start + r]
+        if alpha * mass <= thr:
+            stats[isl, CONVERGED] = 1
+            return
+
+
+@wp.kernel
+def evaluate_islands_kernel(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    q: wp.array(dtype=wp.float64),
+    tm: wp.array3d(dtype=wp.float64),
+    derivatives: int,
+    value: wp.array(dtype=wp.float64),
+    flagged: wp.array(dtype=wp.int32),
+    grad: wp.array(dtype=wp.float64),
+    hess: wp.array(dtype=wp.float64),
+):
+    """Island ``isl``'s objective at ``q`` (and its gradient and Newton matrix): what the Newton kernel
+    minimises, exposed for tests against :class:`data_gen.sim.step_objective.StepObjective`."""
+    isl = wp.tid()
+    _load_state(bd, q, tm, isl)
+    v, f = _evaluate(bd, sc, st, tm, isl, derivatives, grad, hess)
+    value[isl] = v
+    flagged[isl] = f
+
+
+def _wp(t: torch.Tensor, dtype=None) -> wp.array:
+    return wp.from_torch(t.contiguous(), dtype=dtype)
+
+
+class FusedNewton:
+    """:func:`data_gen.sim.newton.minimise` for a fixed set of objects and islands in one warp launch per
+    solve (see the module docstring). Built once per group of islands next to its
+    :class:`data_gen.sim.step_objective.SolveWorkspace`, whose contact buffers it reads."""
+
+    def __init__(self, model: Model, layout: DofLayout, contact: WarpContact) -> None:
+        wp.init()
+        self.contact = contact
+        self.device = contact.device
+        n = model.num_objects
+        n_isl, size = layout.num_islands, layout.island_size
+        self.shape = (n_isl, size)
+        i32 = torch.int32
+        counts = torch.bincount(layout.island, minlength=n_isl)
+        object_start = torch.zeros(n_isl + 1, dtype=torch.int64)
+        object_start[1:] = torch.cumsum(counts, 0)
+        dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
+        self._keep = {
+            "columns": (4 * model.num_handles).to(i32), "object_start": object_start.to(i32),
+            "island_objects": torch.sort(layout.island, stable=True).indices.to(i32),
+            "island_dofs": dofs.to(i32), "island_of": layout.island.to(i32), "flat_index": layout.flat_index.to(i32),
+            "mass_matrix": model.mass_matrix, "mass_b_sum": model.mass_b_sum, "cub_c": model.cub_c,
+            "cub_volume": model.cub_volume_m3, "mu_pa": model.mu_pa, "lam_pa": model.lam_pa,
+            "spd_tolerance_pa": model.spd_tolerance_pa, "rest": model.sphere_rest_m, "b": model.sphere_b,
+            "radius": model.sphere_radius_m,
+        }  # fmt: skip
+        self._keep = {key: value.contiguous() for key, value in self._keep.items()}
+        bd = Bodies()
+        for key, value in self._keep.items():
+            setattr(bd, key, _wp(value, wp.vec3d if key == "rest" else None))
+        bd.island_size = int(size)
+        self.bodies = bd
+        scene = contact.scene
+        sc = SceneArgs()
+        sc.has_ground = int(scene.ground)
+        sc.box_centers, sc.box_rotations, sc.box_half_extents = scene._device_boxes(self.device)
+        sc.far_m = wp.float64(_FAR_M)
+        if scene.points is not None:
+            grid, static_points = scene._device_points(self.device)
+            sc.has_points, sc.grid, sc.static_points = 1, grid.id, static_points
+            sc.point_radius_m, sc.point_search_m = wp.float64(scene.points.radius_m), wp.float64(scene.points.search_m)
+        else:
+            sc.has_points, sc.grid = 0, wp.uint64(0)
+            sc.static_points = wp.zeros(0, dtype=wp.vec3d, device=self.device)
+            sc.point_radius_m, sc.point_search_m = wp.float64(0.0), wp.float64(1.0)
+        self.scene = sc
+        like = dict(dtype=model.mass_kg.dtype, device=model.mass_kg.device)
+        self.q = torch.zeros(n_isl * size, **like)
+        self.trial_q = torch.zeros_like(self.q)
+        self.dq = torch.zeros_like(self.q)
+        self.grad = torch.zeros_like(self.q)
+        self.hess = torch.zeros(n_isl * size * size, **like)
+        self.chol = torch.zeros_like(self.hess)
+        self.tm = torch.zeros(n, 3, model.columns, **like)
+        self.tm_pred = torch.zeros_like(self.tm)
+        self.first = torch.zeros(n_isl * size, dtype=i32, device=model.mass_kg.device)
+        self.stats = torch.zeros(n_isl, NUM_STATS, dtype=i32, device=model.mass_kg.device)
+        self.threshold = torch.zeros(n_isl, **like)
+        self.trust = torch.zeros(n_isl, **like)
+        self._work = [_wp(t) for t in (self.q, self.trial_q, self.tm, self.grad, self.hess, self.chol, self.dq,
+                                       self.first, self.stats)]  # fmt: skip
+        self._limits = [_wp(self.threshold), _wp(self.trust)]
+        self._step = StepData()
+        self._pair_capacity = -1
+
+    def _step_data(self, tm_pred: torch.Tensor, gravity_m_s2: torch.Tensor, h2: float) -> StepData:
+        c = self.contact
+        st = self._step
+        if self._pair_capacity != c.pair_capacity:  # the contact object's pair buffers were (re)allocated
+            c_ints, c_vec, c_scal = c.pair_arrays()
+            self._pair_capacity = c.pair_capacity
+            st.stiffness, st.friction_scale = _wp(c.stiffness), _wp(c.friction_scale)
+            st.start_x, st.start_normal = _wp(c.start_x, wp.vec3d), _wp(c.start_normals, wp.vec3d)
+            st.tm_pred = _wp(self.tm_pred)
+            st.obj_i, st.sph_i, st.obj_j, st.sph_j = (_wp(t) for t in c_ints)
+            st.frozen_x_j, st.normal0, st.x0_i, st.x0_j = (_wp(t, wp.vec3d) for t in c_vec)
+            st.pair_stiffness, st.radius_sum, st.pair_friction_scale = (_wp(t) for t in c_scal)
+        self.tm_pred.copy_(tm_pred)
+        g = gravity_m_s2.tolist()
+        st.gravity = wp.vec3d(g[0], g[1], g[2])
+        st.h2 = wp.float64(h2)
+        st.smoothing_m = wp.float64(c.smoothing_m)
+        st.num_pairs = int(c.num_pairs)
+        return st
+
+    def evaluate(self, tm_pred: torch.Tensor, gravity_m_s2: torch.Tensor, h2: float, q: torch.Tensor,
+                 derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:  # fmt: skip
+        """Objective per island (n_isl,) at ``q`` (n_isl, N), with derivatives the gradient (n_isl, N) and
+        matrix (n_isl, N, N) (copies), and per island whether an elastic block failed the near-SPD test."""
+        n_isl, size = self.shape
+        st = self._step_data(tm_pred, gravity_m_s2, h2)
+        self.q.copy_(q.reshape(-1))
+        value = torch.zeros(n_isl, dtype=self.q.dtype, device=self.q.device)
+        flagged = torch.zeros(n_isl, dtype=torch.int32, device=self.q.device)
+        q_w, _, tm, grad, hess = self._work[:5]
+        wp.launch(evaluate_islands_kernel, dim=n_isl, device=self.device, inputs=[
+            self.bodies, self.scene, st, q_w, tm, int(derivatives), _wp(value), _wp(flagged), grad, hess,
+        ])  # fmt: skip
+        if not derivatives:
+            return value, None, None, flagged.bool()
+        return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size).clone(), flagged.bool()
+
+    def solve(self, tm_pred: torch.Tensor, gravity_m_s2: torch.Tensor, h2: float, q0: torch.Tensor,
+              scale: torch.Tensor, trust_m: torch.Tensor, settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
+        """Minimise every island from ``q0`` (n_isl, N) for the step whose contact data the contact object
+        holds (``prepare`` called); ``tm_pred`` (n, 3, K) the predicted states, gravity (3,) m/s^2, h^2 in
+        s^2; ``scale`` and ``trust_m`` (n_isl,) as in ``minimise``. None when an island needs ``minimise``."""
+        n_isl, size = self.shape
+        st = self._step_data(tm_pred, gravity_m_s2, h2)
+        self.q.copy_(q0.reshape(-1))
+        self.threshold.copy_(settings.tolerance * scale)
+        self.trust.copy_(trust_m)
+        q, trial_q, tm, grad, hess, chol, dq, first, stats = self._work
+        wp.launch(newton_islands_kernel, dim=n_isl, device=self.device, inputs=[
+            self.bodies, self.scene, st, *self._limits, int(settings.iterations), int(settings.line_search_steps),
+            q, trial_q, tm, grad, hess, chol, dq, first, stats,
+        ])  # fmt: skip
+        out = self.stats.to(torch.int64)
+        if bool((out[:, STATUS] != SOLVED).any()):
+            return None
+        totals = out.sum(0).tolist()
+        counters = {
+            "evaluations": totals[EVALUATIONS],
+            "evaluations_with_derivatives": totals[EVALUATIONS_WITH_DERIVATIVES],
+            "strict_projections": 0,
+            "line_search_failures": totals[LINE_SEARCH_FAILURES],
+            "line_search_extended": totals[LINE_SEARCH_EXTENDED],
+            "trust_limited_steps": totals[TRUST_LIMITED],
+            "unconverged_solves": n_isl - totals[CONVERGED],
+        }
+        return NewtonResult(self.q.view(n_isl, size).clone(), out[:, ITERATIONS], out[:, CONVERGED].bool(), counters)
+
+
+__all__ = ["FusedNewton", "evaluate_islands_kernel", "newton_islands_kernel"]

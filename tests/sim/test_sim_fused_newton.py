@@ -1,0 +1,158 @@
+"""The fused Newton kernel (:mod:`data_gen.sim.fused_newton`) against the batched path it replaces: the same
+objective, gradient and Newton matrix as :class:`StepObjective` (1e-10), the same minimiser result as
+:func:`minimise` to the solver's tolerance, the hand-back to ``minimise`` where it cannot go on, and whole
+simulations that agree with the batched path and repeat bit for bit."""
+
+import numpy as np
+import pytest
+import torch
+
+from data_gen.sim.fused_newton import FusedNewton
+from data_gen.sim.newton import NewtonSettings, minimise
+from data_gen.sim.presets import load_preset
+from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
+from data_gen.sim.step_objective import StepObjective
+from tests.sim.test_sim_warp_kernels import _setup
+
+D = torch.float64
+GRAVITY = torch.tensor([0.0, 0.0, -9.81], dtype=D)
+H_S = 0.01
+STIFFNESS_FACTOR = load_preset("draft").contact_stiffness_factor
+
+SCENES = [
+    StaticScene(),
+    StaticScene(boxes=(StaticBox((0.6, 0.0, 0.1), (0.2, 0.3, 0.1), (0.95, 0.05, 0.2, 0.1)),)),
+    StaticScene(points=StaticPoints(np.array([[0.0, 0.0, 0.05], [0.05, 0.0, 0.05], [0.6, 0.0, 0.1]]), 0.04, 0.1)),
+]
+IDS = ["ground", "box", "points"]
+
+
+def _objective(scene: StaticScene, seed: int = 3, speed: float = 0.3, handles: tuple[int, int, int] = (1, 3, 2)):
+    """A step of the three-object set of the kernel tests (by default 1, 3 and 2 handles; two islands, pairs
+    within an island and against a frozen partner), moving at ``speed`` (m/s scale) from its start."""
+    model, layout, distance, _, _, pairs, tm = _setup(scene, seed, handles)
+    # keep the translations (column 3) and shrink what strains (the linear part and the other handles' columns)
+    deform = (torch.arange(model.columns) != 3).to(D)
+    tm = tm * (1.0 - 0.99 * deform)  # strains of ~1e-4: no block fails the near-SPD test
+    gen = torch.Generator().manual_seed(seed + 1)
+    tmdot = torch.zeros_like(tm)
+    for o in range(model.num_objects):
+        cols = 4 * int(model.num_handles[o])
+        tmdot[o, :, :cols] = speed * torch.randn(3, cols, generator=gen, dtype=D) / cols
+    objective = StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs)
+    fused = FusedNewton(model, layout, objective.contact)
+    return objective, fused, layout.to_islands(tm + H_S * tmdot)
+
+
+@pytest.mark.parametrize("scene", SCENES, ids=IDS)
+def test_fused_objective_equals_the_step_objective(scene):
+    objective, fused, q0 = _objective(scene)
+    gen = torch.Generator().manual_seed(7)
+    for q in (q0, q0 + 2e-3 * torch.randn(q0.shape, generator=gen, dtype=D)):
+        ref = objective.evaluate(q, True)
+        value, grad, hess, flagged = fused.evaluate(objective.tm_pred, GRAVITY, objective.h2, q, True)
+        assert not bool(flagged.any())
+        torch.testing.assert_close(value, ref.value, rtol=1e-11, atol=0.0)
+        scale_g = ref.grad.abs().amax()
+        torch.testing.assert_close(grad, ref.grad, rtol=0.0, atol=1e-10 * float(scale_g))
+        torch.testing.assert_close(hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
+        value_only, no_grad, _, _ = fused.evaluate(objective.tm_pred, GRAVITY, objective.h2, q, False)
+        assert no_grad is None
+        torch.testing.assert_close(value_only, ref.value, rtol=1e-11, atol=0.0)
+
+
+def _captured_solves(max_solves: int = 12):
+    """Real (sub)step solves of the stack below (one-handle boxes on the ground and on each other, with
+    pairs and friction): the arguments the solver passed to ``minimise`` (batched path), skipping free fall."""
+    import data_gen.sim.solver as solver_module
+
+    captured = []
+    original = solver_module.minimise
+
+    def capture(objective, q0, scale, trust, settings, **kwargs):
+        if objective.pairs.num_pairs and len(captured) < max_solves:
+            # the solver's objective shares its contact buffers with later solves of the same islands: rebuild
+            # it with a workspace of its own
+            o = objective
+            own = StepObjective(o.model, o.layout, o.scene, o.gravity, o.tm_n, (o.tm_pred - o.tm_n) / o.h, o.h,
+                                STIFFNESS_FACTOR, o.smoothing_m, o.pairs)  # fmt: skip
+            captured.append((own, q0.clone(), scale.clone(), trust.clone(), settings))
+        return original(objective, q0, scale, trust, settings, **kwargs)
+
+    solver_module.minimise = capture
+    try:
+        _stack(fused=False, frames=10)
+    finally:
+        solver_module.minimise = original
+    return captured
+
+
+def test_fused_solve_matches_minimise_on_real_steps():
+    solves = _captured_solves()
+    assert len(solves) >= 5
+    for objective, q0, scale, trust, settings in solves:
+        fused = FusedNewton(objective.model, objective.layout, objective.contact)
+        ref = minimise(objective, q0, scale, trust, settings)
+        out = fused.solve(objective.tm_pred, objective.gravity, objective.h2, q0, scale, trust, settings)
+        assert out is not None
+        assert bool(ref.converged.all()) and bool(out.converged.all())
+        # the same algorithm on the same objective takes the same path: the results differ by round-off, far
+        # below the stopping tolerance (mass norm), and so do the iteration counts
+        gap = objective.mass_norm(out.q - ref.q)
+        assert bool((gap <= 0.05 * settings.tolerance * scale).all()), (gap / (settings.tolerance * scale)).tolist()
+        assert torch.equal(out.iterations, ref.iterations)
+        v_ref, v_out = objective.evaluate(ref.q, False).value, objective.evaluate(out.q, False).value
+        assert bool(((v_out - v_ref).abs() <= 1e-9 * v_ref.abs()).all())
+        assert out.counters["evaluations_with_derivatives"] >= int(out.iterations.sum())
+        assert (out.iterations >= 1).all() and (out.iterations <= settings.iterations).all()
+
+
+def test_fused_solve_hands_back_an_island_it_cannot_solve():
+    """A one-handle object turned inside out (its elastic block fails the near-SPD test) or a non-finite start
+    makes the kernel hand the solve back (None) to ``minimise``."""
+    objective, q0, scale, trust, settings = _captured_solves(1)[0]
+    fused = FusedNewton(objective.model, objective.layout, objective.contact)
+    assert fused.solve(objective.tm_pred, objective.gravity, objective.h2, q0, scale, trust, settings) is not None
+    layout = objective.layout
+    tm = layout.to_objects(q0).clone()
+    tm[0, 2, 2] = -2.5  # F_zz = 1 - 2.5: inverted
+    inverted = layout.to_islands(tm)
+    _, _, _, flagged = fused.evaluate(objective.tm_pred, objective.gravity, objective.h2, inverted, True)
+    assert bool(flagged[layout.island[0]])
+    assert fused.solve(objective.tm_pred, objective.gravity, objective.h2, inverted, scale, trust, settings) is None
+    bad = q0.clone()
+    bad[0, 0] = float("nan")
+    assert fused.solve(objective.tm_pred, objective.gravity, objective.h2, bad, scale, trust, settings) is None
+
+
+def _stack(fused: bool, frames: int = 20):
+    """Three one-handle boxes (14 x 14 x 10 cm) dropped in a staggered column, draft quality."""
+    from data_gen.sim.material import Material
+    from data_gen.sim.world import SimObjectSpec, Simulator
+    from tests.sim.test_sim_column import grid_box
+
+    half = (0.07, 0.07, 0.05)
+    specs = [
+        SimObjectSpec(f"box_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e9, 0.3, 1000.0),
+                      position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=1)
+        for k in range(3)
+    ]  # fmt: skip
+    sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), "draft", seed=0, fused_newton=fused)
+    return sim.run(frames, fps=25.0)
+
+
+def test_fused_simulation_agrees_with_the_batched_path_and_repeats():
+    """Three stiff boxes dropped into a stack (islands of one and several objects, pairs, friction): the
+    fused path (default) and the batched path give the same trajectories to well under a millimetre, the
+    fused path actually ran (fewer Python-side evaluations are not observable, its counters are per island),
+    and a second fused run is bit-identical."""
+    a, b, c = _stack(True), _stack(False), _stack(True)
+    com_a = np.stack([t.com_m for t in a.objects])
+    com_b = np.stack([t.com_m for t in b.objects])
+    com_c = np.stack([t.com_m for t in c.objects])
+    assert np.array_equal(com_a, com_c)
+    assert np.abs(com_a - com_b).max() < 2e-4, np.abs(com_a - com_b).max()
+    # the boxes came to rest on each other: each centre about one box height (0.1 m) above the one below
+    z = np.sort(com_a[:, -1, 2])
+    np.testing.assert_allclose(np.diff(z), 0.1, atol=0.01)
+    assert a.info.counters["unconverged_solves"] == 0
