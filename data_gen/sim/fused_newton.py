@@ -23,6 +23,8 @@ so this path suits many small islands; large islands want the batched path.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 import warp as wp
 
@@ -38,7 +40,10 @@ from data_gen.sim.energy.contact_kernels import (
 from data_gen.sim.energy.elastic_kernel import deformation_gradient, neo_hookean_point, not_positive_definite
 from data_gen.sim.model import DofLayout, Model
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
-from data_gen.sim.static_scene import _FAR_M
+from data_gen.sim.static_scene import _FAR_M, boxes_distance, points_distance
+
+if TYPE_CHECKING:
+    from data_gen.sim.step_objective import StepObjective
 
 wp.set_module_options({"enable_backward": False})  # forward only: no adjoint code to compile
 
@@ -91,6 +96,7 @@ class Bodies:
     rest: wp.array2d(dtype=wp.vec3d)  # (n, S) sphere centres at rest, m
     b: wp.array3d(dtype=wp.float64)  # (n, S, K)
     radius: wp.array2d(dtype=wp.float64)  # (n, S) m
+    b_norm: wp.array2d(dtype=wp.float64)  # (n, S) |b|: a sphere moves at most |Tm - Tm_n|_F |b| from its start
 
 
 @wp.struct
@@ -99,6 +105,8 @@ class StepData:
     :class:`data_gen.sim.energy.contact_kernels.WarpContact` after ``prepare``)."""
 
     tm_pred: wp.array3d(dtype=wp.float64)  # (n, 3, K)
+    tm_start: wp.array3d(dtype=wp.float64)  # (n, 3, K) the states at the start of the step
+    margin: wp.array2d(dtype=wp.float64)  # (n, S) scratch: start distance to the scene minus radius, m
     gravity: wp.vec3d  # m/s^2
     h2: wp.float64  # s^2
     smoothing_m: wp.float64
@@ -107,6 +115,8 @@ class StepData:
     start_x: wp.array2d(dtype=wp.vec3d)
     start_normal: wp.array2d(dtype=wp.vec3d)
     num_pairs: int
+    pair_start: wp.array(dtype=wp.int32)  # (n_isl + 1,) island i's pairs: pair_order[start[i]:start[i+1]]
+    pair_order: wp.array(dtype=wp.int32)  # the pairs sorted by the island of side i
     obj_i: wp.array(dtype=wp.int32)
     sph_i: wp.array(dtype=wp.int32)
     obj_j: wp.array(dtype=wp.int32)
@@ -129,6 +139,26 @@ def _load_state(bd: Bodies, q: wp.array(dtype=wp.float64), tm: wp.array3d(dtype=
         for r in range(3):
             for a in range(bd.columns[o]):
                 tm[o, r, a] = q[bd.flat_index[o, r * kp + a]]
+
+
+@wp.func
+def _scene_margins(bd: Bodies, sc: SceneArgs, st: StepData, isl: int):
+    """Per sphere of the island's objects: how far its start position is from touching the scene (m), or
+    -1 when it carries a frozen friction force (always evaluated). The scene distance is 1-Lipschitz, so a
+    sphere whose margin exceeds its largest possible motion cannot touch the scene: it contributes nothing and
+    :func:`_evaluate` skips it."""
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        for s in range(bd.radius.shape[1]):
+            m = wp.float64(-1.0)
+            if st.stiffness[o, s] != _ZERO and st.friction_scale[o, s] <= _ZERO:
+                sdf, n = boxes_distance(st.start_x[o, s], sc.has_ground, sc.box_centers, sc.box_rotations,
+                                        sc.box_half_extents, sc.far_m)  # fmt: skip
+                if sc.has_points != 0:
+                    sdf, n = points_distance(sc.grid, st.start_x[o, s], sc.static_points, sc.point_radius_m,
+                                             sc.point_search_m, sdf, n)  # fmt: skip
+                m = sdf - bd.radius[o, s]
+            st.margin[o, s] = m
 
 
 @wp.func
@@ -208,8 +238,16 @@ def _evaluate(
                                             k_v = k_v + h9[r * 3 + j, s * 3 + l] * caj * bd.cub_c[o, i, c, l]
                                     fc = bd.flat_index[o, s * kp + c]
                                     hess[base + fc] = hess[base + fc] + w * k_v
-        # scene contact + friction of every sphere
+        # scene contact + friction of every sphere that may touch the scene
+        moved2 = _ZERO
+        for r in range(3):
+            for a in range(cols):
+                dm = tm[o, r, a] - st.tm_start[o, r, a]
+                moved2 = moved2 + dm * dm
+        moved = wp.sqrt(moved2)
         for s in range(bd.radius.shape[1]):
+            if st.margin[o, s] > moved * bd.b_norm[o, s]:
+                continue
             active, e, g, h, normal = scene_sphere_terms(
                 tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x, st.start_normal,
                 st.smoothing_m, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m,
@@ -221,7 +259,8 @@ def _evaluate(
                     add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
                     add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, kp, h2 * h)
     # pair contact + friction of the island's candidate pairs (side i on one of its objects)
-    for p in range(st.num_pairs):
+    for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
+        p = st.pair_order[k]
         oi = st.obj_i[p]
         if bd.island_of[oi] == isl:
             oj = st.obj_j[p]
@@ -358,6 +397,7 @@ def newton_islands_kernel(
     value = _ZERO
     for k in range(NUM_STATS):
         stats[isl, k] = 0
+    _scene_margins(bd, sc, st, isl)
     for it in range(iterations):
         if have == 0:
             _load_state(bd, q, tm, isl)
@@ -446,6 +486,7 @@ def evaluate_islands_kernel(
     """Island ``isl``'s objective at ``q`` (and its gradient and Newton matrix): what the Newton kernel
     minimises, exposed for tests against :class:`data_gen.sim.step_objective.StepObjective`."""
     isl = wp.tid()
+    _scene_margins(bd, sc, st, isl)
     _load_state(bd, q, tm, isl)
     v, f = _evaluate(bd, sc, st, tm, isl, derivatives, grad, hess)
     value[isl] = v
@@ -480,7 +521,7 @@ class FusedNewton:
             "mass_matrix": model.mass_matrix, "mass_b_sum": model.mass_b_sum, "cub_c": model.cub_c,
             "cub_volume": model.cub_volume_m3, "mu_pa": model.mu_pa, "lam_pa": model.lam_pa,
             "spd_tolerance_pa": model.spd_tolerance_pa, "rest": model.sphere_rest_m, "b": model.sphere_b,
-            "radius": model.sphere_radius_m,
+            "radius": model.sphere_radius_m, "b_norm": model.sphere_b.norm(dim=2),
         }  # fmt: skip
         self._keep = {key: value.contiguous() for key, value in self._keep.items()}
         bd = Bodies()
@@ -511,6 +552,10 @@ class FusedNewton:
         self.chol = torch.zeros_like(self.hess)
         self.tm = torch.zeros(n, 3, model.columns, **like)
         self.tm_pred = torch.zeros_like(self.tm)
+        self.tm_start = torch.zeros_like(self.tm)
+        self.margin = torch.zeros_like(model.sphere_radius_m)
+        self.island_of = layout.island
+        self.pair_start = torch.zeros(n_isl + 1, dtype=i32, device=model.mass_kg.device)
         self.first = torch.zeros(n_isl * size, dtype=i32, device=model.mass_kg.device)
         self.stats = torch.zeros(n_isl, NUM_STATS, dtype=i32, device=model.mass_kg.device)
         self.threshold = torch.zeros(n_isl, **like)
@@ -521,32 +566,45 @@ class FusedNewton:
         self._step = StepData()
         self._pair_capacity = -1
 
-    def _step_data(self, tm_pred: torch.Tensor, gravity_m_s2: torch.Tensor, h2: float) -> StepData:
+    def _step_data(self, objective: StepObjective) -> StepData:
+        """The step's data for the kernels: ``objective``'s states, gravity and h^2, and the contact data of
+        its last ``prepare`` (pairs ordered by island)."""
         c = self.contact
+        if objective.contact is not c:
+            raise ValueError("the objective's contact buffers are not this FusedNewton's (another workspace)")
         st = self._step
         if self._pair_capacity != c.pair_capacity:  # the contact object's pair buffers were (re)allocated
             c_ints, c_vec, c_scal = c.pair_arrays()
             self._pair_capacity = c.pair_capacity
             st.stiffness, st.friction_scale = _wp(c.stiffness), _wp(c.friction_scale)
             st.start_x, st.start_normal = _wp(c.start_x, wp.vec3d), _wp(c.start_normals, wp.vec3d)
-            st.tm_pred = _wp(self.tm_pred)
+            st.tm_pred, st.tm_start, st.margin = _wp(self.tm_pred), _wp(self.tm_start), _wp(self.margin)
             st.obj_i, st.sph_i, st.obj_j, st.sph_j = (_wp(t) for t in c_ints)
             st.frozen_x_j, st.normal0, st.x0_i, st.x0_j = (_wp(t, wp.vec3d) for t in c_vec)
             st.pair_stiffness, st.radius_sum, st.pair_friction_scale = (_wp(t) for t in c_scal)
-        self.tm_pred.copy_(tm_pred)
-        g = gravity_m_s2.tolist()
+            self._obj_i = c_ints[0]
+            self.pair_order = torch.zeros_like(c_ints[0])
+            st.pair_start, st.pair_order = _wp(self.pair_start), _wp(self.pair_order)
+        self.tm_pred.copy_(objective.tm_pred)
+        self.tm_start.copy_(objective.tm_n)
+        g = objective.gravity.tolist()
         st.gravity = wp.vec3d(g[0], g[1], g[2])
-        st.h2 = wp.float64(h2)
+        st.h2 = wp.float64(objective.h2)
         st.smoothing_m = wp.float64(c.smoothing_m)
-        st.num_pairs = int(c.num_pairs)
+        p = int(c.num_pairs)
+        st.num_pairs = p
+        island = self.island_of[self._obj_i[:p].long()]
+        self.pair_order[:p] = torch.sort(island, stable=True).indices.to(torch.int32)
+        self.pair_start[1:] = torch.cumsum(torch.bincount(island, minlength=self.shape[0]), 0)
         return st
 
-    def evaluate(self, tm_pred: torch.Tensor, gravity_m_s2: torch.Tensor, h2: float, q: torch.Tensor,
+    def evaluate(self, objective: StepObjective, q: torch.Tensor,
                  derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:  # fmt: skip
-        """Objective per island (n_isl,) at ``q`` (n_isl, N), with derivatives the gradient (n_isl, N) and
-        matrix (n_isl, N, N) (copies), and per island whether an elastic block failed the near-SPD test."""
+        """``objective`` per island (n_isl,) at ``q`` (n_isl, N) as the kernel computes it, with derivatives
+        the gradient (n_isl, N) and matrix (n_isl, N, N) (copies), and per island whether an elastic block
+        failed the near-SPD test (the kernel does not project; ``StepObjective`` eigen-clamps those)."""
         n_isl, size = self.shape
-        st = self._step_data(tm_pred, gravity_m_s2, h2)
+        st = self._step_data(objective)
         self.q.copy_(q.reshape(-1))
         value = torch.zeros(n_isl, dtype=self.q.dtype, device=self.q.device)
         flagged = torch.zeros(n_isl, dtype=torch.int32, device=self.q.device)
@@ -558,13 +616,13 @@ class FusedNewton:
             return value, None, None, flagged.bool()
         return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size).clone(), flagged.bool()
 
-    def solve(self, tm_pred: torch.Tensor, gravity_m_s2: torch.Tensor, h2: float, q0: torch.Tensor,
-              scale: torch.Tensor, trust_m: torch.Tensor, settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
-        """Minimise every island from ``q0`` (n_isl, N) for the step whose contact data the contact object
-        holds (``prepare`` called); ``tm_pred`` (n, 3, K) the predicted states, gravity (3,) m/s^2, h^2 in
-        s^2; ``scale`` and ``trust_m`` (n_isl,) as in ``minimise``. None when an island needs ``minimise``."""
+    def solve(self, objective: StepObjective, q0: torch.Tensor, scale: torch.Tensor, trust_m: torch.Tensor,
+              settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
+        """Minimise ``objective`` (a :class:`StepObjective` on this workspace's contact buffers, as just
+        built: its ``prepare`` is the last) on every island from ``q0`` (n_isl, N); ``scale`` and ``trust_m``
+        (n_isl,) as in ``minimise``. None when an island needs ``minimise``."""
         n_isl, size = self.shape
-        st = self._step_data(tm_pred, gravity_m_s2, h2)
+        st = self._step_data(objective)
         self.q.copy_(q0.reshape(-1))
         self.threshold.copy_(settings.tolerance * scale)
         self.trust.copy_(trust_m)

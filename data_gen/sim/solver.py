@@ -652,8 +652,7 @@ class ImplicitEulerSolver:
         )
         scale, trust = objective.motion_scale(), objective.trust_radius()
         fused = objective.workspace.fused if self.fused_newton else None
-        result = None if fused is None else fused.solve(objective.tm_pred, self.gravity, objective.h2, q0, scale,
-                                                         trust, settings)  # fmt: skip
+        result = None if fused is None else fused.solve(objective, q0, scale, trust, settings)
         if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
             result = minimise(objective, q0, scale, trust, settings, on_gradient=check_gradient,
                               on_indefinite=indefinite)  # fmt: skip

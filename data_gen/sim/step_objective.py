@@ -30,8 +30,8 @@ from data_gen.sim.newton import Evaluation, Objective
 from data_gen.sim.reduced import DTYPE
 from data_gen.sim.energy.scene_sdf import SceneDistance
 
-# largest island (unknowns) solved by FusedNewton: 20 one-handle objects
-FUSED_MAX_ISLAND_DOFS = 240
+# largest island (unknowns) solved by FusedNewton: 100 one-handle objects
+FUSED_MAX_ISLAND_DOFS = 1200
 
 
 @dataclass

@@ -3,6 +3,8 @@ objective, gradient and Newton matrix as :class:`StepObjective` (1e-10), the sam
 :func:`minimise` to the solver's tolerance, the hand-back to ``minimise`` where it cannot go on, and whole
 simulations that agree with the batched path and repeat bit for bit."""
 
+import itertools
+
 import numpy as np
 import pytest
 import torch
@@ -45,32 +47,39 @@ def _objective(scene: StaticScene, seed: int = 3, speed: float = 0.3, handles: t
 
 
 @pytest.mark.parametrize("scene", SCENES, ids=IDS)
-def test_fused_objective_equals_the_step_objective(scene):
-    objective, fused, q0 = _objective(scene)
+@pytest.mark.parametrize("handles", [(1, 3, 2), (1, 1, 1)], ids=["mixed", "one-handle"])
+def test_fused_objective_equals_the_step_objective(scene, handles):
+    """Mixed handle counts (equal island sizes) and one-handle objects (islands of 24 and 12 unknowns: the
+    smaller one's padded rows are identity rows)."""
+    objective, fused, q0 = _objective(scene, handles=handles)
     gen = torch.Generator().manual_seed(7)
-    for q in (q0, q0 + 2e-3 * torch.randn(q0.shape, generator=gen, dtype=D)):
+    layout = objective.layout
+    lowered = layout.to_objects(q0).clone()
+    lowered[:, 2, 3] -= 0.05  # 5 cm down: spheres clear of the scene at the start now touch it (the kernel skips
+    # spheres by their start distance and a bound on their motion: these must not be skipped)
+    for q in (q0, q0 + 2e-3 * torch.randn(q0.shape, generator=gen, dtype=D), layout.to_islands(lowered)):
         ref = objective.evaluate(q, True)
-        value, grad, hess, flagged = fused.evaluate(objective.tm_pred, GRAVITY, objective.h2, q, True)
+        value, grad, hess, flagged = fused.evaluate(objective, q, True)
         assert not bool(flagged.any())
         torch.testing.assert_close(value, ref.value, rtol=1e-11, atol=0.0)
         scale_g = ref.grad.abs().amax()
         torch.testing.assert_close(grad, ref.grad, rtol=0.0, atol=1e-10 * float(scale_g))
         torch.testing.assert_close(hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
-        value_only, no_grad, _, _ = fused.evaluate(objective.tm_pred, GRAVITY, objective.h2, q, False)
+        value_only, no_grad, _, _ = fused.evaluate(objective, q, False)
         assert no_grad is None
         torch.testing.assert_close(value_only, ref.value, rtol=1e-11, atol=0.0)
 
 
-def _captured_solves(max_solves: int = 12):
-    """Real (sub)step solves of the stack below (one-handle boxes on the ground and on each other, with
-    pairs and friction): the arguments the solver passed to ``minimise`` (batched path), skipping free fall."""
+def _captured_solves(max_solves: int = 40, throw: bool = False):
+    """Real (sub)step solves of the stack below (one-handle boxes falling, landing on the ground and on each
+    other, with pairs and friction): the arguments the solver passed to ``minimise`` (batched path)."""
     import data_gen.sim.solver as solver_module
 
     captured = []
     original = solver_module.minimise
 
     def capture(objective, q0, scale, trust, settings, **kwargs):
-        if objective.pairs.num_pairs and len(captured) < max_solves:
+        if len(captured) < max_solves:
             # the solver's objective shares its contact buffers with later solves of the same islands: rebuild
             # it with a workspace of its own
             o = objective
@@ -81,21 +90,27 @@ def _captured_solves(max_solves: int = 12):
 
     solver_module.minimise = capture
     try:
-        _stack(fused=False, frames=10)
+        _stack(fused=False, frames=10, throw=throw)
     finally:
         solver_module.minimise = original
     return captured
 
 
-def test_fused_solve_matches_minimise_on_real_steps():
-    solves = _captured_solves()
+@pytest.mark.parametrize("throw", [False, True], ids=["dropped", "thrown"])
+def test_fused_solve_matches_minimise_on_real_steps(throw):
+    solves = _captured_solves(throw=throw)
     assert len(solves) >= 5
-    for objective, q0, scale, trust, settings in solves:
+    trust_limited = 0
+    for (objective, q0, scale, trust, settings), trust_factor in zip(solves, itertools.cycle([1.0, 1.0, 0.005])):
+        # every third solve with a tiny trust radius: updates cut by it (the search starts below alpha = 1)
+        trust = trust_factor * trust
         fused = FusedNewton(objective.model, objective.layout, objective.contact)
         ref = minimise(objective, q0, scale, trust, settings)
-        out = fused.solve(objective.tm_pred, objective.gravity, objective.h2, q0, scale, trust, settings)
+        out = fused.solve(objective, q0, scale, trust, settings)
         assert out is not None
-        assert bool(ref.converged.all()) and bool(out.converged.all())
+        trust_limited += out.counters["trust_limited_steps"]
+        assert out.counters["trust_limited_steps"] == ref.counters["trust_limited_steps"]
+        assert torch.equal(out.converged, ref.converged)
         # the same algorithm on the same objective takes the same path: the results differ by round-off, far
         # below the stopping tolerance (mass norm), and so do the iteration counts
         gap = objective.mass_norm(out.q - ref.q)
@@ -105,6 +120,26 @@ def test_fused_solve_matches_minimise_on_real_steps():
         assert bool(((v_out - v_ref).abs() <= 1e-9 * v_ref.abs()).all())
         assert out.counters["evaluations_with_derivatives"] >= int(out.iterations.sum())
         assert (out.iterations >= 1).all() and (out.iterations <= settings.iterations).all()
+    assert trust_limited > 0
+
+
+def test_fused_solve_does_not_depend_on_the_previous_solve():
+    """The envelope Cholesky reads only inside the current matrix's profile: a solve whose islands have no
+    pairs (block-diagonal matrix) after one with pairs on the same buffers equals the same solve on fresh
+    buffers, bit for bit."""
+    from dataclasses import fields
+
+    objective, q0, scale, trust, settings = next(c for c in _captured_solves() if c[0].pairs.num_pairs)
+    assert objective.workspace.fused.solve(objective, q0, scale, trust, settings) is not None
+    o = objective
+    no_pairs = type(o.pairs)(**{f.name: getattr(o.pairs, f.name)[:0] for f in fields(o.pairs)})
+    args = (o.model, o.layout, o.scene, o.gravity, o.tm_n, (o.tm_pred - o.tm_n) / o.h, o.h, STIFFNESS_FACTOR,
+            o.smoothing_m, no_pairs)  # fmt: skip
+    reused = StepObjective(*args, workspace=objective.workspace)
+    fresh = StepObjective(*args)
+    a = reused.workspace.fused.solve(reused, q0, scale, trust, settings)
+    b = fresh.workspace.fused.solve(fresh, q0, scale, trust, settings)
+    assert torch.equal(a.q, b.q) and torch.equal(a.iterations, b.iterations)
 
 
 def test_fused_solve_hands_back_an_island_it_cannot_solve():
@@ -112,21 +147,22 @@ def test_fused_solve_hands_back_an_island_it_cannot_solve():
     makes the kernel hand the solve back (None) to ``minimise``."""
     objective, q0, scale, trust, settings = _captured_solves(1)[0]
     fused = FusedNewton(objective.model, objective.layout, objective.contact)
-    assert fused.solve(objective.tm_pred, objective.gravity, objective.h2, q0, scale, trust, settings) is not None
+    assert fused.solve(objective, q0, scale, trust, settings) is not None
     layout = objective.layout
     tm = layout.to_objects(q0).clone()
     tm[0, 2, 2] = -2.5  # F_zz = 1 - 2.5: inverted
     inverted = layout.to_islands(tm)
-    _, _, _, flagged = fused.evaluate(objective.tm_pred, objective.gravity, objective.h2, inverted, True)
+    _, _, _, flagged = fused.evaluate(objective, inverted, True)
     assert bool(flagged[layout.island[0]])
-    assert fused.solve(objective.tm_pred, objective.gravity, objective.h2, inverted, scale, trust, settings) is None
+    assert fused.solve(objective, inverted, scale, trust, settings) is None
     bad = q0.clone()
     bad[0, 0] = float("nan")
-    assert fused.solve(objective.tm_pred, objective.gravity, objective.h2, bad, scale, trust, settings) is None
+    assert fused.solve(objective, bad, scale, trust, settings) is None
 
 
-def _stack(fused: bool, frames: int = 20):
-    """Three one-handle boxes (14 x 14 x 10 cm) dropped in a staggered column, draft quality."""
+def _stack(fused: bool, frames: int = 20, throw: bool = False):
+    """Three one-handle boxes (14 x 14 x 10 cm) dropped in a staggered column, draft quality; with ``throw``
+    the top one is thrown down at 3 m/s, spinning at 10 rad/s."""
     from data_gen.sim.material import Material
     from data_gen.sim.world import SimObjectSpec, Simulator
     from tests.sim.test_sim_column import grid_box
@@ -134,7 +170,9 @@ def _stack(fused: bool, frames: int = 20):
     half = (0.07, 0.07, 0.05)
     specs = [
         SimObjectSpec(f"box_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e9, 0.3, 1000.0),
-                      position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=1)
+                      position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=1,
+                      velocity_m_s=(0.5, 0.0, -3.0) if throw and k == 2 else (0.0, 0.0, 0.0),
+                      angular_velocity_rad_s=(10.0, 3.0, 0.0) if throw and k == 2 else (0.0, 0.0, 0.0))
         for k in range(3)
     ]  # fmt: skip
     sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), "draft", seed=0, fused_newton=fused)
