@@ -584,6 +584,7 @@ class FusedNewton:
             st.pair_stiffness, st.radius_sum, st.pair_friction_scale = (_wp(t) for t in c_scal)
             self._obj_i = c_ints[0]
             self.pair_order = torch.zeros_like(c_ints[0])
+            self._identity_pairs = 0  # pair_order[:k] = 0..k-1 for this k (one-island solves)
             st.pair_start, st.pair_order = _wp(self.pair_start), _wp(self.pair_order)
         self.tm_pred.copy_(objective.tm_pred)
         self.tm_start.copy_(objective.tm_n)
@@ -593,9 +594,16 @@ class FusedNewton:
         st.smoothing_m = wp.float64(c.smoothing_m)
         p = int(c.num_pairs)
         st.num_pairs = p
-        island = self.island_of[self._obj_i[:p].long()]
-        self.pair_order[:p] = torch.sort(island, stable=True).indices.to(torch.int32)
-        self.pair_start[1:] = torch.cumsum(torch.bincount(island, minlength=self.shape[0]), 0)
+        if self.shape[0] == 1:  # one island: every pair, in order
+            if p > self._identity_pairs:
+                self.pair_order[:p] = torch.arange(p, dtype=torch.int32)
+                self._identity_pairs = p
+            self.pair_start[1] = p
+        else:
+            island = self.island_of[self._obj_i[:p].long()]
+            self.pair_order[:p] = torch.sort(island, stable=True).indices.to(torch.int32)
+            self.pair_start[1:] = torch.cumsum(torch.bincount(island, minlength=self.shape[0]), 0)
+            self._identity_pairs = 0
         return st
 
     def evaluate(self, objective: StepObjective, q: torch.Tensor,
