@@ -6,16 +6,19 @@ near-rigid objects (one affine handle each, 12 unknowns) that per-iteration over
 dominated. This module runs the same algorithm compiled: each island's thread evaluates its objective,
 gradient and Newton matrix (the terms of :mod:`data_gen.sim.step_objective`: inertia, gravity, the
 neo-Hookean cubature sum, scene and pair contact with lagged friction, through the same ``wp.func``\\ s as
-the contact and elastic kernels), factorises the matrix (dense Cholesky, the 1e-10 relative ridge where
+the contact and elastic kernels), factorises the matrix (envelope Cholesky, the 1e-10 relative ridge where
 needed), limits the update by the trust radius on contact-sphere motion, runs the Armijo backtracking search
 (then plain decrease for ``EXTRA_HALVINGS`` more halvings) and tests convergence
-(``alpha |dq|_M <= tol scale``; an update already that small is taken whole) exactly as ``minimise`` does.
+(``alpha |dq|_M <= tol scale``; an update already that small is taken whole) exactly as ``minimise`` does:
+on recorded steps it takes the same iterations and ends at the same state up to round-off (the sums run
+in another order), which ``tests/sim/test_sim_fused_newton.py`` checks.
 
-What it does not do, it hands back: an island whose Newton matrix stays indefinite after the ridge (a
-near-SPD elastic block: ``minimise`` eigen-clamps those), whose elastic block fails the near-SPD test, or
-whose gradient is not finite is marked ``needs_fallback``; :meth:`FusedNewton.solve` then returns None and
-the caller runs ``minimise`` (which projects, or raises the error that names the object). The results
-agree with ``minimise`` to the solver's tolerance, not bit for bit (sums run in another order).
+What it does not do, it hands back: an island whose Newton matrix stays indefinite after the ridge
+(``minimise`` then projects every elastic block of the island) or whose objective or gradient is not finite
+is marked ``NEEDS_FALLBACK``; :meth:`FusedNewton.solve` then returns None and the caller runs ``minimise``
+(which projects, or raises the error that names the object). Elastic blocks that fail the near-SPD test are
+projected here as in the batched path (the analytic eigensystem of
+:func:`data_gen.sim.energy.elastic_kernel.projected_neo_hookean_hessian`).
 
 On CPU warp runs the island threads one after another (deterministic); on CUDA each island is one thread,
 so this path suits many small islands; large islands want the batched path.
@@ -37,7 +40,12 @@ from data_gen.sim.energy.contact_kernels import (
     scene_sphere_terms,
     sphere_position,
 )
-from data_gen.sim.energy.elastic_kernel import deformation_gradient, neo_hookean_point, not_positive_definite
+from data_gen.sim.energy.elastic_kernel import (
+    deformation_gradient,
+    neo_hookean_point,
+    not_positive_definite,
+    projected_neo_hookean_hessian,
+)
 from data_gen.sim.model import DofLayout, Model
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
 from data_gen.sim.static_scene import _FAR_M, boxes_distance, points_distance
@@ -174,8 +182,8 @@ def _evaluate(
     band: wp.array2d(dtype=wp.int32),
 ):
     """Objective of island ``isl`` at the states ``tm`` (J); with ``derivatives`` its gradient and Newton
-    matrix are written into the island's part of ``grad`` / ``hess``. Returns (value, 1 if an elastic block
-    failed the near-SPD test else 0).
+    matrix are written into the island's part of ``grad`` / ``hess`` (elastic blocks failing the near-SPD
+    test projected, as :class:`StepObjective` does). Returns (value, 1 if such a block was met else 0).
 
     ``band`` (n, 2): the island-local columns [lo, hi) that object o's rows hold, its own and those of the
     objects an active pair couples it to. The matrix is cleared only there (what the previous evaluation
@@ -231,8 +239,9 @@ def _evaluate(
                 psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], derivatives)
                 value = value + h2 * v * psi
                 if derivatives != 0:
-                    if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:
+                    if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:  # as StepObjective: projected
                         flagged = int(1)
+                        h9 = projected_neo_hookean_hessian(f, bd.mu_pa[o], bd.lam_pa[o])
                     w = h2 * v
                     for r in range(3):
                         for a in range(cols):
@@ -428,9 +437,6 @@ def newton_islands_kernel(
             _load_state(bd, q, tm, isl)
             value, flagged = _evaluate(bd, sc, st, tm, isl, 1, grad, hess, band)
             stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
-            if flagged != 0:
-                stats[isl, STATUS] = NEEDS_FALLBACK
-                return
         have = int(0)
         finite = int(1)
         biggest = _ZERO
@@ -481,7 +487,7 @@ def newton_islands_kernel(
                 stats[isl, LINE_SEARCH_EXTENDED] += 1
             if ok != 0:
                 accepted = int(1)
-                if with_derivatives != 0 and flagged == 0:
+                if with_derivatives != 0:
                     have = int(1)
                     value = trial
                 break
@@ -639,7 +645,7 @@ class FusedNewton:
                  derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor]:  # fmt: skip
         """``objective`` per island (n_isl,) at ``q`` (n_isl, N) as the kernel computes it, with derivatives
         the gradient (n_isl, N) and matrix (n_isl, N, N) (copies), and per island whether an elastic block
-        failed the near-SPD test (the kernel does not project; ``StepObjective`` eigen-clamps those)."""
+        failed the near-SPD test (projected, as ``StepObjective`` does)."""
         n_isl, size = self.shape
         st = self._step_data(objective)
         self.q.copy_(q.reshape(-1))

@@ -191,18 +191,16 @@ class StepObjective(Objective):
         n, k = tm.shape[0], m.columns
         if len(self.elastic_groups) == 1 and len(self.elastic_groups[0][0]) == n:  # one group: every object in order
             _, cub_c, points = self.elastic_groups[0]
-            energy, piola, hess, flags = points.evaluate(tm, derivatives)
-            return elastic_from_points(cub_c, energy, piola, hess if derivatives else None, flags, strict)
+            energy, piola, hess, _ = points.evaluate(tm, derivatives, strict)
+            return elastic_from_points(cub_c, energy, piola, hess if derivatives else None)
         out = ObjectTerms(
             torch.zeros(n, dtype=DTYPE),
             torch.zeros(n, 3, k, dtype=DTYPE) if derivatives else None,
             torch.zeros(n, 3 * k, 3 * k, dtype=DTYPE) if derivatives else None,
         )
         for idx, cub_c, points in self.elastic_groups:  # at most two groups: rigid and deformable
-            energy, piola, hess, flags = points.evaluate(tm[idx], derivatives)
-            part = elastic_from_points(
-                cub_c, energy, piola, hess if derivatives else None, flags, None if strict is None else strict[idx]
-            )
+            energy, piola, hess, _ = points.evaluate(tm[idx], derivatives, None if strict is None else strict[idx])
+            part = elastic_from_points(cub_c, energy, piola, hess if derivatives else None)
             out.energy[idx] = part.energy
             if derivatives:
                 out.grad[idx] = part.grad

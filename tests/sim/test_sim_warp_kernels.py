@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from data_gen.sim.energy.contact_kernels import WarpContact
-from data_gen.sim.energy.elastic import elastic, elastic_from_points
+from data_gen.sim.energy.elastic import deformation_gradients, elastic, elastic_from_points, neo_hookean_hessian
 from data_gen.sim.energy.elastic_kernel import WarpNeoHookean
 from data_gen.sim.energy.pair_contact import FROZEN, PairSet, pair_contact
 from data_gen.sim.energy.scene_contact import contact_start, scene_contact
@@ -146,11 +146,32 @@ def test_neo_hookean_kernel_equals_the_torch_elastic_term_including_projection()
     points = WarpNeoHookean(4 * model.num_handles, *args)
     for strict in (None, torch.tensor([False, True, False])):
         ref = elastic(*args, tm, True, strict)
-        energy, piola, hess, flags = points.evaluate(tm, True)
-        got = elastic_from_points(model.cub_c, energy, piola, hess, flags, strict)
+        energy, piola, hess, flags = points.evaluate(tm, True, strict)
+        got = elastic_from_points(model.cub_c, energy, piola, hess)
         assert torch.allclose(got.energy, ref.energy, rtol=1e-12, atol=0)
         assert torch.allclose(got.grad, ref.grad, rtol=1e-10, atol=1e-10 * float(ref.grad.abs().max()))
         assert torch.allclose(got.hess, ref.hess, rtol=1e-9, atol=1e-10 * float(ref.hess.abs().max()))
     assert bool(flags[1].any()) and not bool(flags[0].any())  # the deformed object needed the eigen-clamp
+    # the kernel's analytic projection equals the eigen-clamp block by block, including an inverted F
+    # (det F < 0: the SVD's last singular value negative) and a strongly compressed one
+    energy, _, hess, flags = points.evaluate(tm, True, torch.tensor([True, True, True]))
+    f = deformation_gradients(model.cub_c, tm)
+    volume = model.cub_volume_m3
+    for o, i in [(0, 0), (1, 0), (1, 5), (2, 3)]:
+        h = neo_hookean_hessian(f[o, i][None], float(model.mu_pa[o]), float(model.lam_pa[o]))[0]
+        h = 0.5 * (h + h.T)
+        values, vectors = torch.linalg.eigh(h)
+        clamped = (vectors * values.clamp(min=0.0)) @ vectors.T
+        assert torch.allclose(hess[o, i] / volume[o, i], clamped, rtol=0, atol=1e-9 * float(h.abs().max()))
+    inverted = tm.clone()
+    inverted[0, 2, 2] = -2.5  # F_zz = 1 - 2.5
+    energy, _, hess, flags = points.evaluate(inverted, True)
+    f = deformation_gradients(model.cub_c, inverted)
+    assert float(torch.linalg.det(f[0, 0])) < 0 and bool(flags[0, 0])
+    h = neo_hookean_hessian(f[0, 0][None], float(model.mu_pa[0]), float(model.lam_pa[0]))[0]
+    values, vectors = torch.linalg.eigh(0.5 * (h + h.T))
+    assert float(values.min()) < 0  # indefinite: the projection is exercised
+    clamped = (vectors * values.clamp(min=0.0)) @ vectors.T
+    assert torch.allclose(hess[0, 0] / volume[0, 0], clamped, rtol=0, atol=1e-9 * float(h.abs().max()))
     energy, _, _, _ = points.evaluate(tm, False)
     assert torch.allclose(energy.sum(1), ref.energy, rtol=1e-12, atol=0)

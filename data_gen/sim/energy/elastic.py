@@ -50,26 +50,15 @@ def elastic(
 
 
 def elastic_from_points(
-    cub_c: torch.Tensor,
-    energy_j: torch.Tensor,
-    piola: torch.Tensor,
-    hess: torch.Tensor | None,
-    needs_projection: torch.Tensor | None,
-    strict: torch.Tensor | None = None,
+    cub_c: torch.Tensor, energy_j: torch.Tensor, piola: torch.Tensor, hess: torch.Tensor | None
 ) -> ObjectTerms:
     """Elastic terms from per-point quantities (:class:`data_gen.sim.energy.elastic_kernel.WarpNeoHookean`):
-    energies (n, P) J, volume-weighted Piola stresses (n, P, 3, 3) and 9 x 9 Hessians (n, P, 9, 9) with the
-    (n, P) flags of blocks that fail the near-SPD test; flagged blocks (and every block of ``strict``
-    objects) are eigen-clamped at 0 as in :func:`elastic`."""
+    energies (n, P) J, volume-weighted Piola stresses (n, P, 3, 3) and 9 x 9 Hessians (n, P, 9, 9), the
+    blocks failing the near-SPD test (and every block of ``strict`` objects) already projected by the kernel
+    as :func:`elastic` eigen-clamps them."""
     energy = energy_j.sum(1)
     if hess is None:
         return ObjectTerms(energy)
-    n, p = energy_j.shape
-    bad = needs_projection if strict is None else needs_projection | strict[:, None]
-    if bool(bad.any()):
-        evals, evecs = torch.linalg.eigh(hess[bad])
-        hess = hess.clone()
-        hess[bad] = (evecs * evals.clamp(min=0.0)[:, None, :]) @ evecs.transpose(1, 2)
     return ObjectTerms(energy, *_reduce(cub_c, piola, hess))
 
 

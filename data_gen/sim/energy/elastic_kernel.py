@@ -4,7 +4,11 @@ For every cubature point of every object (padded layout of :class:`data_gen.sim.
 forms ``F = I + Tm C_i`` and writes the volume-weighted energy ``V Psi(F)`` (J), first Piola stress
 ``V P`` (N m) and, with derivatives, the Hessian ``V d2Psi/dF2`` (9 x 9, row-major vec(F)) together with
 the near-positive-definiteness test of :mod:`data_gen.sim.energy.elastic` (a Cholesky factorisation of
-``H + tol I``; a failed pivot flags the block for eigen-clamping). The formulas are those of
+``H + tol I``; a failed pivot flags the block). A flagged block, and every block of a ``strict`` object, is
+replaced by its projection onto the positive semi-definite cone, computed from the analytic eigensystem
+(:func:`projected_neo_hookean_hessian`: a 3 x 3 SVD and a 3 x 3 eigenproblem instead of a 9 x 9 one); the
+torch reference eigen-clamps the assembled block and the tests hold the two together. The formulas are
+those of
 :mod:`data_gen.sim.material` (the torch reference, which the tests compare against):
 
     Psi = mu/2 (I1 - 3) + lam'/2 (J - 1)^2 - mu (J - 1),       lam' = lam + mu,
@@ -12,8 +16,8 @@ the near-positive-definiteness test of :mod:`data_gen.sim.energy.elastic` (a Cho
     H   = mu I9 + lam' g g^T + (lam' (J - 1) - mu) d2J/dF2,     g = vec(cof F),
     d2J/dF_ij dF_kl = eps_ikm eps_jln F_mn.
 
-The reduction to reduced coordinates (a few batched matrix products) and the eigen-clamping of flagged
-blocks stay in torch (:func:`data_gen.sim.energy.elastic.elastic_from_points`).
+The reduction to reduced coordinates (a few batched matrix products) stays in torch
+(:func:`data_gen.sim.energy.elastic.elastic_from_points`).
 """
 
 from __future__ import annotations
@@ -113,6 +117,67 @@ def neo_hookean_point(f: wp.mat33d, mu: wp.float64, lam: wp.float64, derivatives
     return psi, mu * f + coef * cof, h
 
 
+@wp.func
+def _add_mode(h: mat99d, u: wp.mat33d, d: wp.mat33d, v: wp.mat33d, weight: wp.float64):
+    """``h + weight vec(Q) vec(Q)^T`` with ``Q = U D V^T`` (row-major vec)."""
+    q = u * d * wp.transpose(v)
+    for a in range(9):
+        qa = weight * q[a // 3, a % 3]
+        for b in range(9):
+            h[a, b] = h[a, b] + qa * q[b // 3, b % 3]
+    return h
+
+
+@wp.func
+def projected_neo_hookean_hessian(f: wp.mat33d, mu: wp.float64, lam: wp.float64):
+    """The 9 x 9 Hessian of :func:`neo_hookean_point` (Pa) with its negative eigenvalues set to zero, from its
+    analytic eigensystem (Smith, de Goes and Kim 2019: the energy is isotropic, so with ``F = U S V^T``, U
+    and V rotations and S signed, ``U X V^T`` is an eigenvector wherever X is one at S).
+
+    At S = diag(s0, s1, s2), with ``c = lam' (J - 1) - mu``: the twist and flip modes
+    ``(E_ab -+ E_ba) / sqrt 2`` have eigenvalues ``mu +- c s_m`` (m the third index), and the three scaling
+    modes are the eigenvectors of ``A = mu I + lam' g g^T + c [[0, s2, s1], [s2, 0, s0], [s1, s0, 0]]`` with
+    ``g = (s1 s2, s0 s2, s0 s1)`` on the diagonal matrices. The result equals the eigen-clamp of the
+    assembled Hessian (the projection onto the positive semi-definite cone is unique)."""
+    u = wp.mat33d()
+    sig = wp.vec3d()
+    v = wp.mat33d()
+    wp.svd3(f, u, sig, v)  # U and V are rotations; the last singular value carries the sign of det F
+    lam_s = lam + mu
+    jm1 = sig[0] * sig[1] * sig[2] - wp.float64(1.0)
+    c = lam_s * jm1 - mu
+    h = mat99d()
+    root_half = wp.sqrt(wp.float64(0.5))
+    for m in range(3):
+        a = (m + 1) % 3
+        b = (m + 2) % 3
+        flip = mu - c * sig[m]  # (E_ab + E_ba) / sqrt 2
+        twist = mu + c * sig[m]  # (E_ab - E_ba) / sqrt 2
+        d = wp.mat33d()
+        d[a, b] = root_half
+        d[b, a] = root_half
+        if flip > wp.float64(0.0):
+            h = _add_mode(h, u, d, v, flip)
+        d[b, a] = -root_half
+        if twist > wp.float64(0.0):
+            h = _add_mode(h, u, d, v, twist)
+    g = wp.vec3d(sig[1] * sig[2], sig[0] * sig[2], sig[0] * sig[1])
+    scaling = mu * wp.identity(n=3, dtype=wp.float64) + lam_s * wp.outer(g, g)
+    scaling = scaling + c * wp.mat33d(
+        wp.float64(0.0), sig[2], sig[1], sig[2], wp.float64(0.0), sig[0], sig[1], sig[0], wp.float64(0.0)
+    )
+    vectors = wp.mat33d()
+    values = wp.vec3d()
+    wp.eig3(scaling, vectors, values)
+    for k in range(3):
+        if values[k] > wp.float64(0.0):
+            d = wp.mat33d()
+            for i in range(3):
+                d[i, i] = vectors[i, k]
+            h = _add_mode(h, u, d, v, values[k])
+    return h
+
+
 @wp.kernel
 def neo_hookean_points_kernel(
     tm: wp.array3d(dtype=wp.float64),
@@ -122,6 +187,7 @@ def neo_hookean_points_kernel(
     mu_pa: wp.array(dtype=wp.float64),
     lam_pa: wp.array(dtype=wp.float64),
     tolerance_pa: wp.array(dtype=wp.float64),
+    strict: wp.array(dtype=wp.int32),
     derivatives: int,
     energy: wp.array2d(dtype=wp.float64),
     piola: wp.array2d(dtype=wp.mat33d),
@@ -129,7 +195,8 @@ def neo_hookean_points_kernel(
     needs_projection: wp.array2d(dtype=wp.int32),
 ):
     """Point (o, i): writes ``energy`` (n, P) J, ``piola`` (n, P) V P and, when ``derivatives``, ``hess``
-    (n, P) V H and ``needs_projection`` (n, P) (1 where ``H + tol I`` is not positive definite)."""
+    (n, P) V H and ``needs_projection`` (n, P) (1 where ``H + tol I`` is not positive definite); such blocks
+    and all blocks of objects with ``strict`` (n,) set are written projected."""
     o, i = wp.tid()
     v = volume[o, i]
     if v == wp.float64(0.0):
@@ -140,7 +207,10 @@ def neo_hookean_points_kernel(
     piola[o, i] = v * piola_i
     if derivatives == 0:
         return
-    needs_projection[o, i] = not_positive_definite(h, tolerance_pa[o])
+    flagged = not_positive_definite(h, tolerance_pa[o])
+    needs_projection[o, i] = flagged
+    if flagged != 0 or strict[o] != 0:
+        h = projected_neo_hookean_hessian(f, mu_pa[o], lam_pa[o])
     hess[o, i] = v * h
 
 
@@ -164,8 +234,10 @@ class WarpNeoHookean:
         self.piola = torch.zeros(n, p, 3, 3, **like)
         self.hess = torch.zeros(n, p, 9, 9, **like)
         self.needs_projection = torch.zeros(n, p, dtype=torch.int32, device=cub_c.device)
+        self.strict = torch.zeros(n, dtype=torch.int32, device=cub_c.device)
+        self._any_strict = False
         constants = [columns.to(torch.int32).contiguous(), cub_c.contiguous(), volume_m3.contiguous(),
-                     mu_pa.contiguous(), lam_pa.contiguous(), tolerance_pa.contiguous()]  # fmt: skip
+                     mu_pa.contiguous(), lam_pa.contiguous(), tolerance_pa.contiguous(), self.strict]  # fmt: skip
         arrays = [wp.from_torch(self.tm)] + [wp.from_torch(t) for t in constants]
         outputs = [wp.from_torch(self.energy), wp.from_torch(self.piola, dtype=wp.mat33d),
                    wp.from_torch(self.hess, dtype=mat99d), wp.from_torch(self.needs_projection)]  # fmt: skip
@@ -175,10 +247,18 @@ class WarpNeoHookean:
                                  record_cmd=True)  # fmt: skip
         self._derivatives = True
 
-    def evaluate(self, tm: torch.Tensor, derivatives: bool) -> tuple[torch.Tensor, ...]:
-        """Energies (n, P) J, V P (n, P, 3, 3), V H (n, P, 9, 9) and the projection flags (n, P) bool at the
-        padded states ``tm`` (n, 3, K). The tensors are buffers: the next evaluation overwrites them."""
+    def evaluate(self, tm: torch.Tensor, derivatives: bool,
+                 strict: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:  # fmt: skip
+        """Energies (n, P) J, V P (n, P, 3, 3), V H (n, P, 9, 9) (near-SPD-failing blocks, and every block of
+        the ``strict`` (n,) bool objects, projected) and the near-SPD test's flags (n, P) bool at the padded
+        states ``tm`` (n, 3, K). The tensors are buffers: the next evaluation overwrites them."""
         self.tm.copy_(tm)
+        if strict is not None:
+            self.strict.copy_(strict)
+            self._any_strict = True
+        elif self._any_strict:
+            self.strict.zero_()
+            self._any_strict = False
         if derivatives != self._derivatives:
             self._launch.set_param_at_index(self._derivatives_index, int(derivatives))
             self._derivatives = derivatives
@@ -186,4 +266,7 @@ class WarpNeoHookean:
         return self.energy, self.piola, self.hess, self.needs_projection.bool()
 
 
-__all__ = ["WarpNeoHookean", "deformation_gradient", "mat99d", "neo_hookean_point", "neo_hookean_points_kernel", "not_positive_definite"]
+__all__ = [
+    "WarpNeoHookean", "deformation_gradient", "mat99d", "neo_hookean_point", "neo_hookean_points_kernel",
+    "not_positive_definite", "projected_neo_hookean_hessian",
+]
