@@ -274,6 +274,7 @@ class ImplicitEulerSolver:
         self._padded_index = [padded_index(b.model.num_handles, self.model.columns) for b in bodies]
         self._median_radius_m = [float(b.radius_m.median()) for b in bodies]
         self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
+        self._one_handle = [b.model.num_handles == 1 for b in bodies]
         self._groups: OrderedDict[tuple[tuple[int, ...], ...], _GroupSetup] = OrderedDict()
         self._groups_bytes = 0
         self._groups_max_bytes = _GROUP_CACHE_MODELS * _model_bytes(self.model)
@@ -331,10 +332,13 @@ class ImplicitEulerSolver:
                 b.static_force_n = torch.zeros_like(b.static_force_n)
             b.reset_step_forces()
         supported = np.zeros(len(self.bodies), dtype=bool)
-        by_substeps: dict[int, list[list[int]]] = {}
+        by_substeps: dict[tuple[int, bool], list[list[int]]] = {}
         for island, num_sub in zip(islands, self._island_substeps(contacts, positions, speeds)):
-            by_substeps.setdefault(num_sub, []).append(island)  # islands that need the same sub-steps: one solve
-        for num_sub, group in sorted(by_substeps.items()):
+            # islands that need the same sub-steps: one solve; with the fused solver, islands of one-handle
+            # objects only (FusedNewton's) apart from the others
+            rigid = self.fused_newton and all(self._one_handle[k] for k in island)
+            by_substeps.setdefault((num_sub, rigid), []).append(island)
+        for (num_sub, _), group in sorted(by_substeps.items()):
             stats.substeps = max(stats.substeps, num_sub)
             self.h = self.dt / num_sub
             members = [k for island in group for k in island]

@@ -197,3 +197,50 @@ def test_fused_simulation_agrees_with_the_batched_path_and_repeats():
     z = np.sort(com_a[:, -1, 2])
     np.testing.assert_allclose(np.diff(z), 0.1, atol=0.01)
     assert a.info.counters["unconverged_solves"] == 0
+
+
+def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, monkeypatch):
+    """A two-handle soft box falling beside the three-box stack: the stack's islands are solved by the
+    fused kernel, the soft box's by ``minimise`` (the solver splits a sub-step's islands by kind), and the
+    trajectories equal those of the batched path for every object."""
+    from data_gen.sim.material import Material
+    from data_gen.sim.world import SimObjectSpec, Simulator
+    from tests.sim.test_sim_collision import TINY_TRAINING
+    from tests.sim.test_sim_column import grid_box
+
+    import data_gen.sim.fused_newton as fused_module
+    import data_gen.sim.solver as solver_module
+
+    calls = {"fused": 0, "minimise": 0}
+    fused_solve, batched = fused_module.FusedNewton.solve, solver_module.minimise
+
+    def count_fused(self, *args, **kwargs):
+        calls["fused"] += 1
+        return fused_solve(self, *args, **kwargs)
+
+    def count_minimise(objective, *args, **kwargs):
+        calls["minimise"] += 1
+        assert not bool((objective.model.num_handles == 1).all())  # one-handle islands went to the kernel
+        return batched(objective, *args, **kwargs)
+
+    monkeypatch.setattr(fused_module.FusedNewton, "solve", count_fused)
+    monkeypatch.setattr(solver_module, "minimise", count_minimise)
+    half = (0.07, 0.07, 0.05)
+
+    def run(fused: bool):
+        specs = [
+            SimObjectSpec(f"box_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e9, 0.3, 1000.0),
+                          position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=1)
+            for k in range(3)
+        ] + [SimObjectSpec("soft", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e5, 0.3, 1000.0),
+                           position_m=(0.6, 0.0, 0.2), num_handles=2, skinning_settings=TINY_TRAINING)]  # fmt: skip
+        sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), "draft", seed=0, fused_newton=fused,
+                        skinning_cache_dir=str(tmp_path))  # fmt: skip
+        return np.stack([t.com_m for t in sim.run(12, fps=25.0).objects])
+
+    with_kernel = run(True)
+    assert calls["fused"] > 0 and calls["minimise"] > 0
+    monkeypatch.setattr(fused_module.FusedNewton, "solve", fused_solve)
+    monkeypatch.setattr(solver_module, "minimise", batched)
+    without = run(False)
+    assert np.abs(with_kernel - without).max() < 2e-4
