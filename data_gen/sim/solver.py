@@ -22,7 +22,9 @@ halving for any decrease before giving up at the last accepted iterate.
 Counters (``ImplicitEulerSolver.counters``, reported in ``SimulationRunSummary.counters``): island solves,
 ``unconverged_solves`` (stopped at ``newton_iterations`` above tolerance), ``line_search_failures``,
 ``line_search_extended``, ``trust_limited_steps``, ``strict_projections`` (indefinite Newton matrix:
-every elastic block projected), ``substep_cap_raised`` and energy evaluations.
+every elastic block projected), ``substep_cap_raised``, energy evaluations, ``fused_island_solves`` (island
+solves done by :class:`~data_gen.sim.fused_newton.FusedNewton`) and ``fused_handed_back`` (group solves it
+handed back to :func:`minimise`).
 
 Sleeping: an awake object whose fastest cubature point moves slower than ``sleep_speed_m_s`` while it is
 supported (in contact) for ``sleep_steps`` consecutive steps is frozen (no Newton work, its contact
@@ -293,6 +295,8 @@ class ImplicitEulerSolver:
                 "trust_limited_steps",
                 "line_search_extended",
                 "unconverged_solves",
+                "fused_island_solves",
+                "fused_handed_back",
             ),
             0,
         )
@@ -657,6 +661,11 @@ class ImplicitEulerSolver:
         scale, trust = objective.motion_scale(), objective.trust_radius()
         fused = objective.workspace.fused if self.fused_newton else None
         result = None if fused is None else fused.solve(objective, q0, scale, trust, settings)
+        if fused is not None:
+            if result is None:
+                self.counters["fused_handed_back"] += 1
+            else:
+                self.counters["fused_island_solves"] += len(islands)
         if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
             result = minimise(objective, q0, scale, trust, settings, on_gradient=check_gradient,
                               on_indefinite=indefinite)  # fmt: skip

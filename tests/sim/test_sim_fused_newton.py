@@ -197,6 +197,10 @@ def test_fused_simulation_agrees_with_the_batched_path_and_repeats():
     z = np.sort(com_a[:, -1, 2])
     np.testing.assert_allclose(np.diff(z), 0.1, atol=0.01)
     assert a.info.counters["unconverged_solves"] == 0
+    # every island solve of the fused run went through the kernel (nothing handed back); none in the other
+    assert a.info.counters["fused_island_solves"] == a.info.counters["island_solves"] > 0
+    assert a.info.counters["fused_handed_back"] == 0
+    assert b.info.counters["fused_island_solves"] == 0
 
 
 def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, monkeypatch):
