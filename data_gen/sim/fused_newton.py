@@ -51,7 +51,7 @@ from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSe
 from data_gen.sim.static_scene import _FAR_M, boxes_distance, points_distance
 
 if TYPE_CHECKING:
-    from data_gen.sim.step_objective import StepObjective
+    from data_gen.sim.step_objective import ContactForces, StepObjective
 
 wp.set_module_options({"enable_backward": False})  # forward only: no adjoint code to compile
 
@@ -526,6 +526,67 @@ def evaluate_islands_kernel(
     flagged[isl] = f
 
 
+@wp.kernel
+def final_forces_kernel(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    q: wp.array(dtype=wp.float64),
+    tm: wp.array3d(dtype=wp.float64),
+    sphere_x: wp.array2d(dtype=wp.vec3d),
+    scene_force: wp.array2d(dtype=wp.vec3d),
+    scene_normal: wp.array2d(dtype=wp.vec3d),
+    pair_force: wp.array(dtype=wp.vec3d),
+    pair_normal: wp.array(dtype=wp.vec3d),
+):
+    """Island ``isl`` at ``q`` (the solve's result; its margins still hold): every sphere's position (m),
+    scene contact + friction force (N) and scene normal, and every pair's force on side i (N) and normal
+    j -> i, zero where inactive: what :meth:`StepObjective.forces` returns, for the recorder."""
+    isl = wp.tid()
+    _load_state(bd, q, tm, isl)
+    zero = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        cols = bd.columns[o]
+        moved2 = _ZERO
+        for r in range(3):
+            for a in range(cols):
+                dm = tm[o, r, a] - st.tm_start[o, r, a]
+                moved2 = moved2 + dm * dm
+        moved = wp.sqrt(moved2)
+        for s in range(bd.radius.shape[1]):
+            sphere_x[o, s] = sphere_position(tm, bd.rest, bd.b, o, s, cols)
+            scene_force[o, s] = zero
+            scene_normal[o, s] = zero
+            if st.margin[o, s] <= moved * bd.b_norm[o, s]:
+                active, e, g, h, normal = scene_sphere_terms(
+                    tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x,
+                    st.start_normal, st.smoothing_m, sc.has_ground, sc.box_centers, sc.box_rotations,
+                    sc.box_half_extents, sc.far_m, sc.has_points, sc.grid, sc.static_points, sc.point_radius_m,
+                    sc.point_search_m, o, s,
+                )  # fmt: skip
+                if active != 0:
+                    scene_force[o, s] = -g
+                    scene_normal[o, s] = normal
+    for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
+        p = st.pair_order[k]
+        oi = st.obj_i[p]
+        oj = st.obj_j[p]
+        cols_j = int(0)
+        if oj >= 0:
+            cols_j = bd.columns[oj]
+        active, e, g, h, normal = pair_terms(
+            tm, bd.rest, bd.b, oi, st.sph_i[p], bd.columns[oi], oj, st.sph_j[p], cols_j, st.frozen_x_j[p],
+            st.pair_stiffness[p], st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p],
+            st.x0_j[p], st.smoothing_m,
+        )  # fmt: skip
+        pair_force[p] = zero
+        pair_normal[p] = zero
+        if active != 0:
+            pair_force[p] = -g
+            pair_normal[p] = normal
+
+
 def _wp(t: torch.Tensor, dtype=None) -> wp.array:
     return wp.from_torch(t.contiguous(), dtype=dtype)
 
@@ -593,6 +654,10 @@ class FusedNewton:
         # (n, 2) columns each object's rows hold in hess (the kernels keep it: hess is cleared only there)
         self.band = torch.zeros(n, 2, dtype=i32, device=model.mass_kg.device)
         self.stats = torch.zeros(n_isl, NUM_STATS, dtype=i32, device=model.mass_kg.device)
+        self.sphere_x = torch.zeros(n, model.sphere_radius_m.shape[1], 3, **like)
+        self.scene_force = torch.zeros_like(self.sphere_x)
+        self.scene_normals = torch.zeros_like(self.sphere_x)
+        self._force_arrays = [_wp(t, wp.vec3d) for t in (self.sphere_x, self.scene_force, self.scene_normals)]
         self.threshold = torch.zeros(n_isl, **like)
         self.trust = torch.zeros(n_isl, **like)
         self._work = [_wp(t) for t in (self.q, self.trial_q, self.tm, self.grad, self.hess, self.chol, self.dq,
@@ -619,6 +684,9 @@ class FusedNewton:
             st.pair_stiffness, st.radius_sum, st.pair_friction_scale = (_wp(t) for t in c_scal)
             self._obj_i = c_ints[0]
             self.pair_order = torch.zeros_like(c_ints[0])
+            self.pair_force = torch.zeros(len(c_ints[0]), 3, dtype=self.q.dtype, device=self.q.device)
+            self.pair_normals = torch.zeros_like(self.pair_force)
+            self._pair_force_arrays = [_wp(self.pair_force, wp.vec3d), _wp(self.pair_normals, wp.vec3d)]
             self._identity_pairs = 0  # pair_order[:k] = 0..k-1 for this k (one-island solves)
             st.pair_start, st.pair_order = _wp(self.pair_start), _wp(self.pair_order)
         self.tm_pred.copy_(objective.tm_pred)
@@ -690,5 +758,19 @@ class FusedNewton:
         }
         return NewtonResult(self.q.view(n_isl, size).clone(), out[:, ITERATIONS], out[:, CONVERGED].bool(), counters)
 
+    def forces(self) -> ContactForces:
+        """The contact forces of the last :meth:`solve`'s result (it must have returned a result): what
+        :meth:`StepObjective.forces` computes at that state, from one launch over the islands."""
+        from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
-__all__ = ["FusedNewton", "evaluate_islands_kernel", "newton_islands_kernel"]
+        n_isl, _ = self.shape
+        q, _, tm = self._work[:3]
+        wp.launch(final_forces_kernel, dim=n_isl, device=self.device, inputs=[
+            self.bodies, self.scene, self._step, q, tm, *self._force_arrays, *self._pair_force_arrays,
+        ])  # fmt: skip
+        p = int(self._step.num_pairs)
+        return ContactForces(self.scene_force.clone(), self.scene_normals.clone(), self.sphere_x.clone(),
+                             self.pair_force[:p].clone(), self.pair_normals[:p].clone())  # fmt: skip
+
+
+__all__ = ["FusedNewton", "evaluate_islands_kernel", "final_forces_kernel", "newton_islands_kernel"]

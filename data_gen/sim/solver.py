@@ -661,6 +661,7 @@ class ImplicitEulerSolver:
         scale, trust = objective.motion_scale(), objective.trust_radius()
         fused = objective.workspace.fused if self.fused_newton else None
         result = None if fused is None else fused.solve(objective, q0, scale, trust, settings)
+        from_kernel = result is not None  # the recorder reads the forces the kernel computes at its result
         if fused is not None:
             if result is None:
                 self.counters["fused_handed_back"] += 1
@@ -679,7 +680,8 @@ class ImplicitEulerSolver:
         for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per solve
             self.state.q[o] = q_o
             self.state.qdot[o] = qdot_o
-        self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model, h, stats, supported)
+        forces = fused.forces() if from_kernel else objective.forces(tm)
+        self._record_group_forces(objects, forces, ps, objective.pairs, model, h, stats, supported)
         return int(result.iterations.sum())
 
     def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, stats: StepStats,

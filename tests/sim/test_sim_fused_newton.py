@@ -248,3 +248,20 @@ def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, 
     monkeypatch.setattr(solver_module, "minimise", batched)
     without = run(False)
     assert np.abs(with_kernel - without).max() < 2e-4
+
+
+def test_fused_forces_equal_the_step_objective_forces():
+    """The recorder's forces of a fused solve (one kernel launch) equal StepObjective.forces at its result:
+    per-sphere scene forces, normals and positions, per-pair forces and normals."""
+    checked = 0
+    for objective, q0, scale, trust, settings in _captured_solves(12):
+        fused = objective.workspace.fused
+        out = fused.solve(objective, q0, scale, trust, settings)
+        got = fused.forces()
+        ref = objective.forces(objective.layout.to_objects(out.q))
+        for name in ("scene_force_n", "scene_normals", "sphere_positions_m", "pair_force_i_n", "pair_normals"):
+            a, b = getattr(got, name), getattr(ref, name)
+            assert a.shape == b.shape, name
+            torch.testing.assert_close(a, b, rtol=0.0, atol=1e-12 * max(1.0, float(b.abs().max())))
+        checked += int(ref.pair_force_i_n.abs().sum() > 0) + int(ref.scene_force_n.abs().sum() > 0)
+    assert checked >= 10  # forces were active, not only zeros compared
