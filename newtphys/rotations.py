@@ -129,7 +129,12 @@ def matrix_to_quat_one(m: ArrayLike) -> F64:
     case = pivots.index(max(pivots))
     if case == 0:
         s = math.sqrt(1.0 + tr) * 2
-        q = [0.25 * s, (rows[2][1] - rows[1][2]) / s, (rows[0][2] - rows[2][0]) / s, (rows[1][0] - rows[0][1]) / s]
+        q = [
+            0.25 * s,
+            (rows[2][1] - rows[1][2]) / s,
+            (rows[0][2] - rows[2][0]) / s,
+            (rows[1][0] - rows[0][1]) / s,
+        ]
     else:
         i = case - 1
         j, k = (i + 1) % 3, (i + 2) % 3

@@ -270,7 +270,8 @@ class InertiaMoments:
 
     @classmethod
     def of(cls, model: ReducedObject) -> InertiaMoments:
-        """The moments of ``model``'s inertia particles (``mass_points_rest``, ``mass_b``, ``particle_masses_kg``)."""
+        """The moments of ``model``'s inertia particles (``mass_points_rest``, ``mass_b``,
+        ``particle_masses_kg``)."""
         m = model.particle_masses_kg.numpy()
         rest = model.mass_points_rest.numpy()
         basis = model.mass_b.numpy()
@@ -286,12 +287,15 @@ class InertiaMoments:
         return cls(mass, com_rest, mean_basis, 0.5 * (second + second.T))
 
     def frame(self, tm: np.ndarray, tm_dot: np.ndarray) -> RigidFrame:
-        """Rigid-body quantities at the state ``tm`` (3, 4H) moving at ``tm_dot`` (3, 4H) (``q.reshape(3, -1)``)."""
+        """Rigid-body quantities at the state ``tm`` (3, 4H) moving at ``tm_dot`` (3, 4H), both
+        ``q.reshape(3, -1)`` of a q-ordered state (m, m/s)."""
         z = self.second_moment
         moment = z[:3] + tm @ z[3:]  # A Z = sum_p m_p (x_p - c) z_p^T, (3, 3 + 4H)
         spread = moment[:, :3] + moment[:, 3:] @ tm.T  # sum_p m_p (x_p - c)(x_p - c)^T
         cross = moment[:, 3:] @ tm_dot.T  # sum_p m_p (x_p - c)(v_p - v_c)^T
-        angular_momentum = np.array([cross[1, 2] - cross[2, 1], cross[2, 0] - cross[0, 2], cross[0, 1] - cross[1, 0]])
+        angular_momentum = np.array(
+            [cross[1, 2] - cross[2, 1], cross[2, 0] - cross[0, 2], cross[0, 1] - cross[1, 0]]
+        )
         inertia = np.trace(spread) * np.eye(3) - spread
         spin = float(((tm_dot @ z[3:, 3:]) * tm_dot).sum())
         return RigidFrame(
@@ -323,7 +327,9 @@ class ObjectFrameConstants:
     contact_radius_m: np.ndarray
 
     @classmethod
-    def of(cls, model: ReducedObject, contact: ContactPoints, gravity_m_s2: torch.Tensor) -> ObjectFrameConstants:
+    def of(
+        cls, model: ReducedObject, contact: ContactPoints, gravity_m_s2: torch.Tensor
+    ) -> ObjectFrameConstants:
         """The constants of ``model`` with contact spheres ``contact`` under gravity (3,) m/s^2."""
         gravity_force = (model.masses_kg[:, None] * gravity_m_s2[None, :]).numpy()
         gravity_force.setflags(write=False)
@@ -349,7 +355,9 @@ class FrameRecorder:
     ) -> None:
         self.names, self.ids, self.models, self.contacts = names, ids, models, contacts
         self.gravity = torch.as_tensor(np.asarray(gravity_m_s2, dtype=np.float64))
-        self.constants = [ObjectFrameConstants.of(model, c, self.gravity) for model, c in zip(models, contacts)]
+        self.constants = [
+            ObjectFrameConstants.of(model, contact, self.gravity) for model, contact in zip(models, contacts)
+        ]
         self.frames: list[list[dict]] = [[] for _ in models]
         self.energies: dict[str, list[float]] = {"kinetic": [], "elastic": [], "contact": [], "gravity": []}
 
@@ -369,8 +377,8 @@ class FrameRecorder:
         for k, model in enumerate(self.models):
             self.frames[k].append(
                 _object_frame(
-                    model, self.contacts[k], self.constants[k], qs[k], qdots[k], forces[k], partners[k], asleep[k],
-                    None if sphere_forces is None else sphere_forces[k],
+                    model, self.contacts[k], self.constants[k], qs[k], qdots[k], forces[k], partners[k],
+                    asleep[k], None if sphere_forces is None else sphere_forces[k],
                 )
             )
         for key, value in energies.items():
@@ -508,7 +516,9 @@ def angular_velocity(rel_pos: torch.Tensor, rel_vel: torch.Tensor, masses: torch
     return angular_velocity_from_moments(inertia, ang_mom)
 
 
-def angular_velocity_from_moments(inertia_kg_m2: torch.Tensor, angular_momentum_kg_m2_s: torch.Tensor) -> torch.Tensor:
+def angular_velocity_from_moments(
+    inertia_kg_m2: torch.Tensor, angular_momentum_kg_m2_s: torch.Tensor
+) -> torch.Tensor:
     """omega (rad/s) = I^-1 L (least squares, so a degenerate inertia still gives an answer) from the inertia
     tensor (3,3) kg m^2 and angular momentum (3,) kg m^2/s about the centre of mass."""
     return torch.linalg.lstsq(inertia_kg_m2, angular_momentum_kg_m2_s[:, None]).solution[:, 0]

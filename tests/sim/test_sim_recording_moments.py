@@ -50,7 +50,8 @@ def _object(num_handles: int, seed: int, num_mass_points: int | None) -> tuple[R
     mu, lam = mat.lame_parameters(1e6, 0.3)
     extra = {}
     if num_mass_points is not None:
-        mp = torch.rand(num_mass_points, 3, generator=gen, dtype=D) * torch.tensor([0.3, 0.2, 0.1], dtype=D) + 0.05
+        mp = torch.rand(num_mass_points, 3, generator=gen, dtype=D) * torch.tensor([0.3, 0.2, 0.1], dtype=D)
+        mp = mp + 0.05
         mw = torch.rand(num_mass_points, num_handles, generator=gen, dtype=D)
         mw[:, 0] = 1.0
         extra = {"mass_points_rest": mp, "mass_weights": mw}
@@ -101,7 +102,8 @@ def _reference(obj: ReducedObject, q: torch.Tensor, qdot: torch.Tensor) -> dict:
     vcom = (mp[:, None] * vp).sum(0) / obj.mass_kg
     rel_x, rel_v = xp - com, vp - vcom
     r2 = (rel_x * rel_x).sum(1)
-    inertia = (mp[:, None, None] * (r2[:, None, None] * torch.eye(3, dtype=D) - rel_x[:, :, None] * rel_x[:, None, :])).sum(0)
+    outer = rel_x[:, :, None] * rel_x[:, None, :]
+    inertia = (mp[:, None, None] * (r2[:, None, None] * torch.eye(3, dtype=D) - outer)).sum(0)
     w = (mp / mp.sum()).numpy()
     rest = obj.mass_points_rest.numpy()
     ca, cb = w @ rest, w @ xp.numpy()
@@ -143,7 +145,8 @@ def test_moments_give_the_particle_sums(num_handles, num_mass_points, seed):
     _assert_rel(frame.angular_momentum_kg_m2_s, ref["angular_momentum"])
     _assert_rel(frame.cross_covariance_m2, ref["cross_covariance"])
     assert abs(frame.spin_j - ref["spin"]) <= RTOL * ref["spin"]
-    _assert_rel(matrix_to_quat_one(rotation_from_cross_covariance(frame.cross_covariance_m2)), ref["orientation"])
+    rotation = rotation_from_cross_covariance(frame.cross_covariance_m2)
+    _assert_rel(matrix_to_quat_one(rotation), ref["orientation"])
     # the state moves: these are not near-zero values compared loosely
     assert np.linalg.norm(ref["angular_momentum"]) > 1e-3 * obj.mass_kg * 0.01 and ref["spin"] > 0.0
     assert moments.mass_kg == pytest.approx(obj.mass_kg, rel=RTOL)
@@ -173,7 +176,8 @@ def test_recorded_frame_equals_the_particle_sum_formulas(num_handles, num_mass_p
         np.testing.assert_array_equal(fr["handle_transforms"], q_to_z(q).numpy())
         np.testing.assert_array_equal(fr["cubature_positions_m"], obj.positions(q).numpy())
         np.testing.assert_array_equal(fr["contact_positions_m"], contact.positions(q).numpy())
-        np.testing.assert_array_equal(fr["gravity_force_n"], obj.masses_kg.numpy()[:, None] * GRAVITY[None, :])
+        gravity_force = obj.masses_kg.numpy()[:, None] * GRAVITY[None, :]
+        np.testing.assert_array_equal(fr["gravity_force_n"], gravity_force)
         np.testing.assert_array_equal(fr["contact_force_n"], force.numpy())
         np.testing.assert_array_equal(fr["contact_partner"], partner.numpy())
         np.testing.assert_allclose(
@@ -190,7 +194,8 @@ def test_recorded_frame_equals_the_particle_sum_formulas(num_handles, num_mass_p
         np.testing.assert_allclose(with_spheres["hydrostatic_stress_pa"], mean, rtol=RTOL, atol=0.0)
         assert abs(mean) > 0.0
     else:
-        np.testing.assert_array_equal(with_spheres["hydrostatic_stress_pa"], obj.cauchy_hydrostatic(q).numpy())
+        stress = obj.cauchy_hydrostatic(q).numpy()
+        np.testing.assert_array_equal(with_spheres["hydrostatic_stress_pa"], stress)
     # the stacked tracks are the per-frame values (and own their memory: the cached gravity is read-only)
     track = rec.tracks([None])[0]
     np.testing.assert_array_equal(track.com_m[1], without["com_m"])
@@ -214,7 +219,8 @@ def test_rigid_spinning_state_is_recorded_exactly(num_handles, num_mass_points):
     np.testing.assert_allclose(fr["com_m"], com, rtol=0.0, atol=1e-14 * np.abs(com).max())
     np.testing.assert_allclose(fr["velocity_m_s"], vel, rtol=0.0, atol=1e-13 * np.abs(omega).max())
     np.testing.assert_allclose(fr["orientation_wxyz"], quat, rtol=0.0, atol=1e-14)
-    np.testing.assert_allclose(fr["angular_velocity_rad_s"], omega, rtol=0.0, atol=1e-12 * np.abs(omega).max())
+    omega_tol = 1e-12 * np.abs(omega).max()
+    np.testing.assert_allclose(fr["angular_velocity_rad_s"], omega, rtol=0.0, atol=omega_tol)
     np.testing.assert_allclose(fr["det_f"], 1.0, rtol=0.0, atol=1e-14)
     ref = _reference(obj, q, qdot)
     _assert_rel(fr["angular_velocity_rad_s"], ref["omega"])
@@ -227,13 +233,14 @@ def test_uniform_translation_and_rest_are_recorded_exactly():
     SVD of the symmetric rest covariance) and the spin exactly 0."""
     for num_handles, num_mass_points in CASES:
         obj, contact = _object(num_handles, 9, num_mass_points)
-        q, qdot = _rigid_state(obj, np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.array([2.0, -1.0, 0.5]), np.zeros(3))
+        identity, velocity = np.array([1.0, 0.0, 0.0, 0.0]), np.array([2.0, -1.0, 0.5])
+        q, qdot = _rigid_state(obj, identity, np.zeros(3), velocity, np.zeros(3))
         moments = InertiaMoments.of(obj)
         frame = moments.frame(q.numpy().reshape(3, -1), qdot.numpy().reshape(3, -1))
         assert moments.mean_basis[3] == 1.0
-        np.testing.assert_array_equal(frame.velocity_m_s, [2.0, -1.0, 0.5])
-        np.testing.assert_allclose(matrix_to_quat_one(rotation_from_cross_covariance(frame.cross_covariance_m2)),
-                                   [1.0, 0.0, 0.0, 0.0], rtol=0.0, atol=1e-15)
+        np.testing.assert_array_equal(frame.velocity_m_s, velocity)
+        rotation = rotation_from_cross_covariance(frame.cross_covariance_m2)
+        np.testing.assert_allclose(matrix_to_quat_one(rotation), identity, rtol=0.0, atol=1e-15)
         assert frame.spin_j == 0.0
 
 
@@ -245,7 +252,8 @@ def test_single_matrix_helpers_match_the_batched_functions():
                            np.diag([-1.0, 1.0, -1.0])[None], np.diag([-1.0, -1.0, 1.0])[None]])
     one = np.stack([matrix_to_quat_one(r) for r in rots])
     np.testing.assert_array_equal(one, matrix_to_quat(rots))  # bit for bit
-    pick = np.argmax(np.stack([np.trace(rots, axis1=1, axis2=2), rots[:, 0, 0], rots[:, 1, 1], rots[:, 2, 2]], 1), 1)
+    pivots = [np.trace(rots, axis1=1, axis2=2), rots[:, 0, 0], rots[:, 1, 1], rots[:, 2, 2]]
+    pick = np.argmax(np.stack(pivots, 1), 1)
     assert set(pick.tolist()) == {0, 1, 2, 3}
     with pytest.raises(ValueError, match=r"shape \(3, 3\)"):
         matrix_to_quat_one(np.eye(4))
@@ -257,8 +265,9 @@ def test_single_matrix_helpers_match_the_batched_functions():
     for moved in (rest @ rots[0].T + 2.0, rest * [-1.0, 1.0, 1.0]):
         wn = w / w.sum()
         h = np.einsum("n,ni,nj->ij", wn, moved - wn @ moved, rest - wn @ rest)
-        np.testing.assert_allclose(rotation_from_cross_covariance(h), best_fit_rotation(rest, moved, w), atol=1e-14)
-        np.testing.assert_allclose(rotation_from_cross_covariance(3.0 * h), best_fit_rotation(rest, moved, w), atol=1e-14)
+        fit = best_fit_rotation(rest, moved, w)
+        np.testing.assert_allclose(rotation_from_cross_covariance(h), fit, atol=1e-14)
+        np.testing.assert_allclose(rotation_from_cross_covariance(3.0 * h), fit, atol=1e-14)  # scale-free
     assert np.linalg.det(rotation_from_cross_covariance(np.diag([1.0, 1.0, -1.0]))) == pytest.approx(1.0)
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 3, 3\)"):
         rotation_from_cross_covariance(np.eye(2))
