@@ -7,14 +7,15 @@ Units: m, kg, s, N, Pa.  Object ids are 1-based; partner id 0 is the static scen
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
 from data_gen.sim.contact_points import ContactPoints
-from data_gen.sim.reduced import DTYPE, ReducedObject, deform, q_to_z
+from data_gen.sim.reduced import DTYPE, ReducedObject, deform, handle_permutation
 from data_gen.sim.skinning import SkinningBasis
-from newtphys.rotations import best_fit_rotation, matrix_to_quat
+from newtphys.rotations import matrix_to_quat_one, rotation_from_cross_covariance
 
 
 @dataclass
@@ -217,6 +218,130 @@ class SimulationResult:
         return np.arange(self.num_frames) / self.fps
 
 
+class RigidFrame(NamedTuple):
+    """Rigid-body quantities of one object's inertia particles at one state (see :class:`InertiaMoments`).
+
+    Attributes:
+        com_m: (3,) centre of mass c = sum_p m_p x_p / M.
+        velocity_m_s: (3,) centre-of-mass velocity v_c = sum_p m_p v_p / M.
+        cross_covariance_m2: (3,3) Kabsch H = sum_p (m_p / M) (x_p - c)(r_p - c0)^T (``best_fit_rotation``'s).
+        inertia_kg_m2: (3,3) inertia tensor about c, sum_p m_p (|x_p - c|^2 I - (x_p - c)(x_p - c)^T).
+        angular_momentum_kg_m2_s: (3,) sum_p m_p (x_p - c) x (v_p - v_c).
+        spin_j: sum_p m_p |v_p - v_c|^2 (twice the kinetic energy about the centre of mass), J.
+    """
+
+    com_m: np.ndarray
+    velocity_m_s: np.ndarray
+    cross_covariance_m2: np.ndarray
+    inertia_kg_m2: np.ndarray
+    angular_momentum_kg_m2_s: np.ndarray
+    spin_j: float
+
+
+@dataclass(frozen=True)
+class InertiaMoments:
+    """Mass moments of an object's inertia particles in its affine basis, formed once per object, so
+    that each frame's rigid-body sums over the P particles become products of (3 + 4H)-sized matrices.
+
+    The particles have rest positions r_p (m), affine basis rows b_p (4H,) (``model.mass_b``) and masses
+    m_p (kg), M = sum_p m_p.  With the rest centre of mass c0 = sum_p m_p r_p / M, the mean basis row
+    bbar = sum_p m_p b_p / M and the centred coordinates z_p = [r_p - c0, b_p - bbar] (3 + 4H,), a state
+    Tm = q.reshape(3, 4H) (velocity Tmdot) places every particle at x_p = r_p + Tm b_p, so exactly
+
+        c = c0 + Tm bbar,    v_c = Tmdot bbar,
+        x_p - c = A z_p with A = [I3 | Tm],    v_p - v_c = Tmdot (b_p - bbar),
+
+    and every centred second-order sum is a product with ``second_moment`` = sum_p m_p z_p z_p^T:
+    sum_p m_p (x_p - c) z_p^T = A Z, whose first three columns give the Kabsch cross-covariance and whose
+    basis columns times Tmdot^T give sum_p m_p (x_p - c)(v_p - v_c)^T.  The centring is done once on the
+    particles, so no per-frame difference of large raw moments loses digits.
+
+    Attributes:
+        mass_kg: M (kg).
+        com_rest_m: (3,) c0 (m).
+        mean_basis: (4H,) bbar (m in the position entries, 1 in the homogeneous ones).
+        second_moment: (3 + 4H, 3 + 4H) sum_p m_p z_p z_p^T (kg times the units of the two entries).
+    """
+
+    mass_kg: float
+    com_rest_m: np.ndarray
+    mean_basis: np.ndarray
+    second_moment: np.ndarray
+
+    @classmethod
+    def of(cls, model: ReducedObject) -> InertiaMoments:
+        """The moments of ``model``'s inertia particles (``mass_points_rest``, ``mass_b``,
+        ``particle_masses_kg``)."""
+        m = model.particle_masses_kg.numpy()
+        rest = model.mass_points_rest.numpy()
+        basis = model.mass_b.numpy()
+        # one column sum (row after row, the same additions in every column) for the first moments and M,
+        # so that a basis column equal to the masses' (handle 0's homogeneous entry, weight 1) has a mean
+        # of exactly 1 and a uniform velocity is recorded exactly
+        sums = (m[:, None] * np.concatenate([rest, basis, np.ones_like(m)[:, None]], axis=1)).sum(0)
+        mass = float(sums[-1])
+        com_rest = sums[:3] / mass
+        mean_basis = sums[3:-1] / mass
+        z = np.concatenate([rest - com_rest, basis - mean_basis], axis=1)
+        second = (z * m[:, None]).T @ z
+        return cls(mass, com_rest, mean_basis, 0.5 * (second + second.T))
+
+    def frame(self, tm: np.ndarray, tm_dot: np.ndarray) -> RigidFrame:
+        """Rigid-body quantities at the state ``tm`` (3, 4H) moving at ``tm_dot`` (3, 4H), both
+        ``q.reshape(3, -1)`` of a q-ordered state (m, m/s)."""
+        z = self.second_moment
+        moment = z[:3] + tm @ z[3:]  # A Z = sum_p m_p (x_p - c) z_p^T, (3, 3 + 4H)
+        spread = moment[:, :3] + moment[:, 3:] @ tm.T  # sum_p m_p (x_p - c)(x_p - c)^T
+        cross = moment[:, 3:] @ tm_dot.T  # sum_p m_p (x_p - c)(v_p - v_c)^T
+        angular_momentum = np.array(
+            [cross[1, 2] - cross[2, 1], cross[2, 0] - cross[0, 2], cross[0, 1] - cross[1, 0]]
+        )
+        inertia = np.trace(spread) * np.eye(3) - spread
+        spin = float(((tm_dot @ z[3:, 3:]) * tm_dot).sum())
+        return RigidFrame(
+            com_m=self.com_rest_m + tm @ self.mean_basis,
+            velocity_m_s=tm_dot @ self.mean_basis,
+            cross_covariance_m2=moment[:, :3] / self.mass_kg,
+            inertia_kg_m2=inertia,
+            angular_momentum_kg_m2_s=angular_momentum,
+            spin_j=spin,
+        )
+
+
+@dataclass(frozen=True)
+class ObjectFrameConstants:
+    """What :func:`_object_frame` needs of one object that never changes between frames.
+
+    Attributes:
+        moments: the inertia particles' moments.
+        volume_m3: object volume (sum of the cubature volumes).
+        gravity_force_n: (n,3) m_i g at the cubature points, N (read-only; shared by every frame).
+        z_from_q: (12H,) index with z = q[z_from_q] (``q_to_z``).
+        contact_radius_m: (k,) contact sphere radii, m.
+    """
+
+    moments: InertiaMoments
+    volume_m3: float
+    gravity_force_n: np.ndarray
+    z_from_q: np.ndarray
+    contact_radius_m: np.ndarray
+
+    @classmethod
+    def of(
+        cls, model: ReducedObject, contact: ContactPoints, gravity_m_s2: torch.Tensor
+    ) -> ObjectFrameConstants:
+        """The constants of ``model`` with contact spheres ``contact`` under gravity (3,) m/s^2."""
+        gravity_force = (model.masses_kg[:, None] * gravity_m_s2[None, :]).numpy()
+        gravity_force.setflags(write=False)
+        return cls(
+            InertiaMoments.of(model),
+            float(model.volumes_m3.sum()),
+            gravity_force,
+            np.argsort(handle_permutation(model.num_handles).numpy()),
+            contact.radius_m.numpy(),
+        )
+
+
 class FrameRecorder:
     """Accumulates per-frame arrays of every object while the solver runs."""
 
@@ -230,6 +355,9 @@ class FrameRecorder:
     ) -> None:
         self.names, self.ids, self.models, self.contacts = names, ids, models, contacts
         self.gravity = torch.as_tensor(np.asarray(gravity_m_s2, dtype=np.float64))
+        self.constants = [
+            ObjectFrameConstants.of(model, contact, self.gravity) for model, contact in zip(models, contacts)
+        ]
         self.frames: list[list[dict]] = [[] for _ in models]
         self.energies: dict[str, list[float]] = {"kinetic": [], "elastic": [], "contact": [], "gravity": []}
 
@@ -249,8 +377,8 @@ class FrameRecorder:
         for k, model in enumerate(self.models):
             self.frames[k].append(
                 _object_frame(
-                    model, self.contacts[k], qs[k], qdots[k], forces[k], partners[k], asleep[k], self.gravity,
-                    None if sphere_forces is None else sphere_forces[k],
+                    model, self.contacts[k], self.constants[k], qs[k], qdots[k], forces[k], partners[k],
+                    asleep[k], None if sphere_forces is None else sphere_forces[k],
                 )
             )
         for key, value in energies.items():
@@ -280,43 +408,45 @@ class FrameRecorder:
 def _object_frame(
     model: ReducedObject,
     contact: ContactPoints,
+    constants: ObjectFrameConstants,
     q: torch.Tensor,
     qdot: torch.Tensor,
     force: torch.Tensor,
     partner: torch.Tensor,
     asleep: bool,
-    gravity: torch.Tensor,
     sphere_force: torch.Tensor | None,
 ) -> dict:
     x = model.positions(q)
     F = model.deformation_gradients(q)
     sphere_x = contact.positions(q)
-    # rigid-body quantities from the inertia particles (all of them when the model has them)
-    xp = model.mass_points_rest + model.mass_b @ q.reshape(3, -1).T
-    vp = model.mass_b @ qdot.reshape(3, -1).T
-    mp = model.particle_masses_kg
-    com = (mp[:, None] * xp).sum(0) / model.mass_kg
-    vcom = (mp[:, None] * vp).sum(0) / model.mass_kg
+    q_np = q.numpy()
+    # rigid-body quantities of the inertia particles (all of them when the model has them), from their moments
+    rigid = constants.moments.frame(q_np.reshape(3, -1), qdot.numpy().reshape(3, -1))
     if sphere_force is not None and model.num_handles == 1:
-        mean = rigid_mean_hydrostatic_pa(
-            float(model.volumes_m3.sum()), com, mp, vp - vcom, sphere_x, contact.radius_m, sphere_force
+        mean = rigid_mean_hydrostatic_from_spin_pa(
+            constants.volume_m3, rigid.com_m, rigid.spin_j, sphere_x.numpy(), constants.contact_radius_m,
+            sphere_force.numpy(),
         )
         stress = np.full(model.num_points, mean)
     else:
         stress = model.cauchy_hydrostatic(q).numpy()
+    rotation = rotation_from_cross_covariance(rigid.cross_covariance_m2)
+    omega = angular_velocity_from_moments(
+        torch.from_numpy(rigid.inertia_kg_m2), torch.from_numpy(rigid.angular_momentum_kg_m2_s)
+    )
     return {
-        "handle_transforms": q_to_z(q).numpy(),
+        "handle_transforms": q_np[constants.z_from_q],
         "cubature_positions_m": x.numpy(),
         "contact_positions_m": sphere_x.numpy(),
-        "gravity_force_n": (model.masses_kg[:, None] * gravity[None, :]).numpy(),
+        "gravity_force_n": constants.gravity_force_n,
         "contact_force_n": force.numpy().copy(),
         "contact_partner": partner.numpy().copy(),
         "hydrostatic_stress_pa": stress,
-        "det_f": torch.linalg.det(F).numpy(),
-        "com_m": com.numpy(),
-        "orientation_wxyz": matrix_to_quat(best_fit_rotation(model.mass_points_rest.numpy(), xp.numpy(), mp.numpy())),
-        "velocity_m_s": vcom.numpy(),
-        "angular_velocity_rad_s": angular_velocity(xp - com, vp - vcom, mp).numpy(),
+        "det_f": det3(F.numpy()),
+        "com_m": rigid.com_m,
+        "orientation_wxyz": matrix_to_quat_one(rotation),
+        "velocity_m_s": rigid.velocity_m_s,
+        "angular_velocity_rad_s": omega.numpy(),
         "asleep": np.bool_(asleep),
     }
 
@@ -343,11 +473,36 @@ def rigid_mean_hydrostatic_pa(
     other hand, is E / (rho g L) times more sensitive to the Newton tolerance than the motion (a
     10 GPa block kept a spurious 1e5 Pa with the draft tolerance; measured).
     """
-    magnitude = sphere_f.norm(dim=1, keepdim=True)
-    where = sphere_x - sphere_r[:, None] * sphere_f / magnitude.clamp(min=1e-300)
-    virial = float(((where - com_m) * sphere_f).sum())
     spin = float((particle_masses_kg * (particle_rel_velocity_m_s**2).sum(1)).sum())
+    return rigid_mean_hydrostatic_from_spin_pa(
+        volume_m3, com_m.numpy(), spin, sphere_x.numpy(), sphere_r.numpy(), sphere_f.numpy()
+    )
+
+
+def rigid_mean_hydrostatic_from_spin_pa(
+    volume_m3: float,
+    com_m: np.ndarray,
+    spin: float,
+    sphere_x: np.ndarray,
+    sphere_r: np.ndarray,
+    sphere_f: np.ndarray,
+) -> float:
+    """:func:`rigid_mean_hydrostatic_pa` on NumPy arrays with the particle sum ``spin`` = sum_p m_p
+    |v_p - v_c|^2 (J) given (from :class:`InertiaMoments`, say): volume (m^3), centre of mass (3,) m,
+    sphere centres (k,3) m, radii (k,) m and forces (k,3) N; the result in Pa."""
+    magnitude = np.sqrt((sphere_f * sphere_f).sum(1))[:, None]
+    where = sphere_x - sphere_r[:, None] * sphere_f / np.maximum(magnitude, 1e-300)
+    virial = float(((where - com_m) * sphere_f).sum())
     return (virial + spin) / (3.0 * volume_m3)
+
+
+def det3(f: np.ndarray) -> np.ndarray:
+    """Determinants (...,) of 3x3 matrices (..., 3, 3) by cofactor expansion along the first row."""
+    return (
+        f[..., 0, 0] * (f[..., 1, 1] * f[..., 2, 2] - f[..., 1, 2] * f[..., 2, 1])
+        - f[..., 0, 1] * (f[..., 1, 0] * f[..., 2, 2] - f[..., 1, 2] * f[..., 2, 0])
+        + f[..., 0, 2] * (f[..., 1, 0] * f[..., 2, 1] - f[..., 1, 1] * f[..., 2, 0])
+    )
 
 
 def angular_velocity(rel_pos: torch.Tensor, rel_vel: torch.Tensor, masses: torch.Tensor) -> torch.Tensor:
@@ -358,4 +513,12 @@ def angular_velocity(rel_pos: torch.Tensor, rel_vel: torch.Tensor, masses: torch
         masses[:, None, None]
         * (r2[:, None, None] * torch.eye(3, dtype=DTYPE) - rel_pos[:, :, None] * rel_pos[:, None, :])
     ).sum(0)
-    return torch.linalg.lstsq(inertia, ang_mom[:, None]).solution[:, 0]
+    return angular_velocity_from_moments(inertia, ang_mom)
+
+
+def angular_velocity_from_moments(
+    inertia_kg_m2: torch.Tensor, angular_momentum_kg_m2_s: torch.Tensor
+) -> torch.Tensor:
+    """omega (rad/s) = I^-1 L (least squares, so a degenerate inertia still gives an answer) from the inertia
+    tensor (3,3) kg m^2 and angular momentum (3,) kg m^2/s about the centre of mass."""
+    return torch.linalg.lstsq(inertia_kg_m2, angular_momentum_kg_m2_s[:, None]).solution[:, 0]
