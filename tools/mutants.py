@@ -40,6 +40,7 @@ DEFAULT_TESTS: dict[str, tuple[str, ...]] = {
                                 "tests/probes/test_vlm_scoring.py"),
     "newtphys/vqa_scoring.py": ("tests/probes/vlm/test_vlm_extraction.py", "tests/probes/test_vlm_scoring.py"),
     "data_gen/sim/recording.py": (
+        "tests/sim/test_sim_recording_moments.py",
         "tests/sim/test_sim_recording.py",
         "tests/sim/test_sim_rigid_stress.py",
         "tests/sim/test_sim_column.py",
@@ -185,13 +186,12 @@ MUTANTS: tuple[Mutant, ...] = (
            '"frame": -(-onset // self.substeps)',
            '"frame": onset // self.substeps'),
     Mutant("orientation_recorded_inverted", RECORDING,
-           "matrix_to_quat(best_fit_rotation(model.mass_points_rest.numpy(), xp.numpy(), mp.numpy()))",
-           "matrix_to_quat(best_fit_rotation(model.mass_points_rest.numpy(), xp.numpy(), mp.numpy()).T)"),
+           '"orientation_wxyz": matrix_to_quat_one(rotation),',
+           '"orientation_wxyz": matrix_to_quat_one(rotation.T),'),
     Mutant("com_not_mass_weighted", RECORDING,
-           "com = (mp[:, None] * xp).sum(0) / model.mass_kg",
-           "com = xp.mean(0)",
-           equivalent="every inertia particle has the same mass (ReducedObject gives mass points rho V / P "
-                      "each, and the Simulator always passes mass points), so both means agree to round-off"),
+           "sums = (m[:, None] * np.concatenate(",
+           "sums = (np.ones_like(m)[:, None] * np.concatenate(",
+           tests=("tests/sim/test_sim_recording_moments.py",)),
     # --- solver (batched energy terms and minimiser) -----------------------------------------------
     Mutant("pair_cross_block_sign_flipped", "data_gen/sim/energy/pair_contact.py",
            "cross = -point_hessian(bi_pairs, hp_pairs, bj_pairs)",
