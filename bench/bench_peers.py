@@ -18,6 +18,7 @@ that the resting pile heights agree. Writes bench/results/peers.json and peers.p
     python bench/bench_peers.py            # all scenes
     python bench/bench_peers.py --scenes stiff_10 soft_5
     python bench/bench_peers.py --repeat 3    # fastest of 3 runs per engine and scene (noisy machines)
+    python bench/bench_peers.py --batched     # also NewtPhys without the fused Newton kernel, side by side
 """
 
 from __future__ import annotations
@@ -78,12 +79,13 @@ def placements(count: int) -> list[tuple[float, float, float]]:
     return out
 
 
-def run_newtphys(scene: PeerScene, seed: int = 0) -> dict:
+def run_newtphys(scene: PeerScene, seed: int = 0, fused_newton: bool = True) -> dict:
     specs = [
         _box(f"box_{k}", HALF_M, scene.young_pa, pos, seed=10, training=QUICK_TRAINING, rho=DENSITY)
         for k, pos in enumerate(placements(scene.count))
     ]
-    sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), scene.quality, seed=seed, num_threads=1)
+    sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), scene.quality, seed=seed, num_threads=1,
+                    fused_newton=fused_newton)  # fmt: skip
     frames = int(round(DURATION_S * FPS)) + 1
     t0, c0 = time.perf_counter(), time.process_time()
     res = sim.run(frames, fps=FPS)
@@ -142,6 +144,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     parser.add_argument("--out", type=Path, default=RESULTS / "peers.json")
+    parser.add_argument("--batched", action="store_true",
+                        help="also run NewtPhys without the fused Newton kernel (Simulator(fused_newton=False)) in the "
+                             "same run: the kernel's own speed-up, measured side by side")  # fmt: skip
     parser.add_argument("--repeat", type=int, default=1,
                         help="run each engine this many times per scene and keep the fastest (CPU time) run of each: "
                              "the machines are noisy")  # fmt: skip
@@ -153,6 +158,10 @@ def main(argv: list[str] | None = None) -> dict:
         scene = SCENES[name]
         peer = min((run_pybullet(scene) for _ in range(args.repeat)), key=lambda r: r["cpu_s"])
         ours = min((run_newtphys(scene) for _ in range(args.repeat)), key=lambda r: r["cpu_s"])
+        batched = (
+            min((run_newtphys(scene, fused_newton=False) for _ in range(args.repeat)), key=lambda r: r["cpu_s"])
+            if args.batched else None
+        )  # fmt: skip
         rows.append({
             "scene": name, "boxes": scene.count, "young_pa": scene.young_pa, "quality": scene.quality,
             "newtphys": ours, "pybullet": peer, "ratio": ours["wall_s"] / peer["wall_s"],
@@ -160,6 +169,7 @@ def main(argv: list[str] | None = None) -> dict:
             "newtphys_per_object_s": ours["wall_s"] / scene.count,
             "newtphys_cpu_per_object_s": ours["cpu_s"] / scene.count,
             "target_cpu_ratio": TARGET_CPU_RATIO[name],
+            "newtphys_batched": batched,
             "checks": {"newtphys": pile_checks(np.array(ours["final_com_m"])),
                        "pybullet": pile_checks(np.array(peer["final_com_m"]))},
         })  # fmt: skip
@@ -182,6 +192,14 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"| {r['scene']} | {r['boxes']} | {r['quality']} | {ours['wall_s']:.2f} | {ours['cpu_s']:.2f} | "
               f"{r['pybullet']['cpu_s']:.4f} | {r['cpu_ratio']:.0f}x | {met} | {evaluations} | "
               f"{1e3 * ours['cpu_s'] / max(evaluations, 1):.2f} | {ours['cpu_s'] / r['boxes']:.3f} |")  # fmt: skip
+    if args.batched:
+        print("\n| scene | NewtPhys CPU (s), fused Newton kernel | without it (s) | kernel speed-up | PyBullet ratio "
+              "without it |")
+        print("|---|---|---|---|---|")
+        for r in rows:
+            fused_cpu, batched_cpu = r["newtphys"]["cpu_s"], r["newtphys_batched"]["cpu_s"]
+            print(f"| {r['scene']} | {fused_cpu:.2f} | {batched_cpu:.2f} | {batched_cpu / fused_cpu:.2f}x | "
+                  f"{batched_cpu / max(r['pybullet']['cpu_s'], 1e-9):.0f}x |")  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"duration_s": DURATION_S, "fps": FPS, "repeat": args.repeat, "rows": rows}, indent=2))
     _plot(rows, args.out.with_suffix(".png"))
