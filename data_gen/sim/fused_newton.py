@@ -91,7 +91,6 @@ class Bodies:
     object_start: wp.array(dtype=wp.int32)  # (n_isl + 1,) island i's objects: island_objects[start[i]:start[i+1]]
     island_objects: wp.array(dtype=wp.int32)  # (n,) the objects sorted by island
     island_dofs: wp.array(dtype=wp.int32)  # (n_isl,) unpadded DOF count; entries beyond are padding
-    island_of: wp.array(dtype=wp.int32)  # (n,)
     flat_index: wp.array2d(dtype=wp.int32)  # (n, 3K) position in the flat island vectors
     island_size: int
     mass_matrix: wp.array3d(dtype=wp.float64)  # (n, 3K, 3K)
@@ -138,6 +137,22 @@ class StepData:
     x0_j: wp.array(dtype=wp.vec3d)
 
 
+@wp.struct
+class Work:
+    """A solve's scratch and results, flat per island (n_isl N vectors, n_isl N N matrices)."""
+
+    q: wp.array(dtype=wp.float64)  # the island states: start, then result
+    trial_q: wp.array(dtype=wp.float64)  # the line search's trial point
+    tm: wp.array3d(dtype=wp.float64)  # (n, 3, K) padded states of the point being evaluated
+    grad: wp.array(dtype=wp.float64)
+    hess: wp.array(dtype=wp.float64)
+    chol: wp.array(dtype=wp.float64)  # the envelope Cholesky factor
+    dq: wp.array(dtype=wp.float64)  # the Newton update
+    first: wp.array(dtype=wp.int32)  # per row: the first column inside the envelope
+    band: wp.array2d(dtype=wp.int32)  # (n, 2): the columns each object's rows hold in hess
+    stats: wp.array2d(dtype=wp.int32)  # (n_isl, NUM_STATS)
+
+
 @wp.func
 def _load_state(bd: Bodies, q: wp.array(dtype=wp.float64), tm: wp.array3d(dtype=wp.float64), isl: int):
     """Island vector ``q`` -> padded states ``tm`` of the island's objects."""
@@ -167,6 +182,47 @@ def _scene_margins(bd: Bodies, sc: SceneArgs, st: StepData, isl: int):
                                              sc.point_search_m, sdf, n)  # fmt: skip
                 m = sdf - bd.radius[o, s]
             st.margin[o, s] = m
+
+
+@wp.func
+def _motion_bound(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), o: int, cols: int):
+    """``|Tm - Tm_n|_F`` of object o: a sphere with basis row b has moved at most this times ``|b|`` (m)."""
+    moved2 = _ZERO
+    for r in range(3):
+        for a in range(cols):
+            dm = tm[o, r, a] - st.tm_start[o, r, a]
+            moved2 = moved2 + dm * dm
+    return wp.sqrt(moved2)
+
+
+@wp.func
+def _scene_sphere(bd: Bodies, sc: SceneArgs, st: StepData, tm: wp.array3d(dtype=wp.float64), o: int, s: int,
+                  cols: int):  # fmt: skip
+    """:func:`scene_sphere_terms` of sphere (o, s) with the step's and scene's data."""
+    return scene_sphere_terms(
+        tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x, st.start_normal,
+        st.smoothing_m, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m,
+        sc.has_points, sc.grid, sc.static_points, sc.point_radius_m, sc.point_search_m, o, s,
+    )  # fmt: skip
+
+
+@wp.func
+def _pair_at(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), p: int):
+    """:func:`pair_terms` of candidate pair p: (active, energy, dE/dx_i, Hessian, normal j -> i, its object i,
+    sphere i, columns i, object j (< 0: frozen), sphere j, columns j)."""
+    oi = st.obj_i[p]
+    si = st.sph_i[p]
+    oj = st.obj_j[p]
+    sj = st.sph_j[p]
+    cols_i = bd.columns[oi]
+    cols_j = int(0)
+    if oj >= 0:
+        cols_j = bd.columns[oj]
+    active, e, g, h, normal = pair_terms(
+        tm, bd.rest, bd.b, oi, si, cols_i, oj, sj, cols_j, st.frozen_x_j[p], st.pair_stiffness[p],
+        st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p], st.x0_j[p], st.smoothing_m,
+    )  # fmt: skip
+    return active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j
 
 
 @wp.func
@@ -261,20 +317,11 @@ def _evaluate(
                                     fc = bd.flat_index[o, s * kp + c]
                                     hess[base + fc] = hess[base + fc] + w * k_v
         # scene contact + friction of every sphere that may touch the scene
-        moved2 = _ZERO
-        for r in range(3):
-            for a in range(cols):
-                dm = tm[o, r, a] - st.tm_start[o, r, a]
-                moved2 = moved2 + dm * dm
-        moved = wp.sqrt(moved2)
+        moved = _motion_bound(bd, st, tm, o, cols)
         for s in range(bd.radius.shape[1]):
             if st.margin[o, s] > moved * bd.b_norm[o, s]:
                 continue
-            active, e, g, h, normal = scene_sphere_terms(
-                tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x, st.start_normal,
-                st.smoothing_m, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m,
-                sc.has_points, sc.grid, sc.static_points, sc.point_radius_m, sc.point_search_m, o, s,
-            )  # fmt: skip
+            active, e, g, h, normal = _scene_sphere(bd, sc, st, tm, o, s, cols)
             if active != 0:
                 value = value + h2 * e
                 if derivatives != 0:
@@ -282,32 +329,19 @@ def _evaluate(
                     add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, kp, h2 * h)
     # pair contact + friction of the island's candidate pairs (side i on one of its objects)
     for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
-        p = st.pair_order[k]
-        oi = st.obj_i[p]
-        if bd.island_of[oi] == isl:
-            oj = st.obj_j[p]
-            cols_i = bd.columns[oi]
-            cols_j = int(0)
-            if oj >= 0:
-                cols_j = bd.columns[oj]
-            si = st.sph_i[p]
-            sj = st.sph_j[p]
-            active, e, g, h, normal = pair_terms(
-                tm, bd.rest, bd.b, oi, si, cols_i, oj, sj, cols_j, st.frozen_x_j[p], st.pair_stiffness[p],
-                st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p], st.x0_j[p], st.smoothing_m,
-            )  # fmt: skip
-            if active != 0:
-                value = value + h2 * e
-                if derivatives != 0:
-                    add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
-                                         h2 * g, h2 * h)  # fmt: skip
-                    if oj >= 0:  # the cross blocks widen both objects' bands
-                        first_i = bd.flat_index[oi, 0] - start
-                        first_j = bd.flat_index[oj, 0] - start
-                        band[oi, 0] = wp.min(band[oi, 0], first_j)
-                        band[oi, 1] = wp.max(band[oi, 1], first_j + 3 * cols_j)
-                        band[oj, 0] = wp.min(band[oj, 0], first_i)
-                        band[oj, 1] = wp.max(band[oj, 1], first_i + 3 * cols_i)
+        active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, st.pair_order[k])
+        if active != 0:
+            value = value + h2 * e
+            if derivatives != 0:
+                add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
+                                     h2 * g, h2 * h)  # fmt: skip
+                if oj >= 0:  # the cross blocks widen both objects' bands
+                    first_i = bd.flat_index[oi, 0] - start
+                    first_j = bd.flat_index[oj, 0] - start
+                    band[oi, 0] = wp.min(band[oi, 0], first_j)
+                    band[oi, 1] = wp.max(band[oi, 1], first_j + 3 * cols_j)
+                    band[oj, 0] = wp.min(band[oj, 0], first_i)
+                    band[oj, 1] = wp.max(band[oj, 1], first_i + 3 * cols_i)
     return value, flagged
 
 
@@ -409,19 +443,12 @@ def newton_islands_kernel(
     trust_m: wp.array(dtype=wp.float64),
     iterations: int,
     line_search_steps: int,
-    q: wp.array(dtype=wp.float64),
-    trial_q: wp.array(dtype=wp.float64),
-    tm: wp.array3d(dtype=wp.float64),
-    grad: wp.array(dtype=wp.float64),
-    hess: wp.array(dtype=wp.float64),
-    chol: wp.array(dtype=wp.float64),
-    dq: wp.array(dtype=wp.float64),
-    first: wp.array(dtype=wp.int32),
-    band: wp.array2d(dtype=wp.int32),
-    stats: wp.array2d(dtype=wp.int32),
+    wk: Work,
 ):
-    """Island ``isl``: Newton's method from ``q`` (its part of the flat island vectors, overwritten with the
-    result); ``stats`` (n_isl, NUM_STATS) receives the status and counters."""
+    """Island ``isl``: Newton's method from ``wk.q`` (its part of the flat island vectors, overwritten with
+    the result); ``wk.stats`` (n_isl, NUM_STATS) receives the status and counters."""
+    q, trial_q, tm, grad, hess, chol, dq = wk.q, wk.trial_q, wk.tm, wk.grad, wk.hess, wk.chol, wk.dq
+    first, band, stats = wk.first, wk.band, wk.stats
     isl = wp.tid()
     n_size = bd.island_size
     start = isl * n_size
@@ -507,21 +534,17 @@ def evaluate_islands_kernel(
     bd: Bodies,
     sc: SceneArgs,
     st: StepData,
-    q: wp.array(dtype=wp.float64),
-    tm: wp.array3d(dtype=wp.float64),
+    wk: Work,
     derivatives: int,
     value: wp.array(dtype=wp.float64),
     flagged: wp.array(dtype=wp.int32),
-    grad: wp.array(dtype=wp.float64),
-    hess: wp.array(dtype=wp.float64),
-    band: wp.array2d(dtype=wp.int32),
 ):
-    """Island ``isl``'s objective at ``q`` (and its gradient and Newton matrix): what the Newton kernel
+    """Island ``isl``'s objective at ``wk.q`` (and its gradient and Newton matrix): what the Newton kernel
     minimises, exposed for tests against :class:`data_gen.sim.step_objective.StepObjective`."""
     isl = wp.tid()
     _scene_margins(bd, sc, st, isl)
-    _load_state(bd, q, tm, isl)
-    v, f = _evaluate(bd, sc, st, tm, isl, derivatives, grad, hess, band)
+    _load_state(bd, wk.q, wk.tm, isl)
+    v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band)
     value[isl] = v
     flagged[isl] = f
 
@@ -531,8 +554,7 @@ def final_forces_kernel(
     bd: Bodies,
     sc: SceneArgs,
     st: StepData,
-    q: wp.array(dtype=wp.float64),
-    tm: wp.array3d(dtype=wp.float64),
+    wk: Work,
     sphere_x: wp.array2d(dtype=wp.vec3d),
     scene_force: wp.array2d(dtype=wp.vec3d),
     scene_normal: wp.array2d(dtype=wp.vec3d),
@@ -543,43 +565,25 @@ def final_forces_kernel(
     scene contact + friction force (N) and scene normal, and every pair's force on side i (N) and normal
     j -> i, zero where inactive: what :meth:`StepObjective.forces` returns, for the recorder."""
     isl = wp.tid()
-    _load_state(bd, q, tm, isl)
+    tm = wk.tm
+    _load_state(bd, wk.q, tm, isl)
     zero = wp.vec3d(_ZERO, _ZERO, _ZERO)
     for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
         o = bd.island_objects[slot]
         cols = bd.columns[o]
-        moved2 = _ZERO
-        for r in range(3):
-            for a in range(cols):
-                dm = tm[o, r, a] - st.tm_start[o, r, a]
-                moved2 = moved2 + dm * dm
-        moved = wp.sqrt(moved2)
+        moved = _motion_bound(bd, st, tm, o, cols)
         for s in range(bd.radius.shape[1]):
             sphere_x[o, s] = sphere_position(tm, bd.rest, bd.b, o, s, cols)
             scene_force[o, s] = zero
             scene_normal[o, s] = zero
             if st.margin[o, s] <= moved * bd.b_norm[o, s]:
-                active, e, g, h, normal = scene_sphere_terms(
-                    tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x,
-                    st.start_normal, st.smoothing_m, sc.has_ground, sc.box_centers, sc.box_rotations,
-                    sc.box_half_extents, sc.far_m, sc.has_points, sc.grid, sc.static_points, sc.point_radius_m,
-                    sc.point_search_m, o, s,
-                )  # fmt: skip
+                active, e, g, h, normal = _scene_sphere(bd, sc, st, tm, o, s, cols)
                 if active != 0:
                     scene_force[o, s] = -g
                     scene_normal[o, s] = normal
     for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
         p = st.pair_order[k]
-        oi = st.obj_i[p]
-        oj = st.obj_j[p]
-        cols_j = int(0)
-        if oj >= 0:
-            cols_j = bd.columns[oj]
-        active, e, g, h, normal = pair_terms(
-            tm, bd.rest, bd.b, oi, st.sph_i[p], bd.columns[oi], oj, st.sph_j[p], cols_j, st.frozen_x_j[p],
-            st.pair_stiffness[p], st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p],
-            st.x0_j[p], st.smoothing_m,
-        )  # fmt: skip
+        active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, p)
         pair_force[p] = zero
         pair_normal[p] = zero
         if active != 0:
@@ -611,7 +615,7 @@ class FusedNewton:
         self._keep = {
             "columns": (4 * model.num_handles).to(i32), "object_start": object_start.to(i32),
             "island_objects": torch.sort(layout.island, stable=True).indices.to(i32),
-            "island_dofs": dofs.to(i32), "island_of": layout.island.to(i32), "flat_index": layout.flat_index.to(i32),
+            "island_dofs": dofs.to(i32), "flat_index": layout.flat_index.to(i32),
             "mass_matrix": model.mass_matrix, "mass_b_sum": model.mass_b_sum, "cub_c": model.cub_c,
             "cub_volume": model.cub_volume_m3, "mu_pa": model.mu_pa, "lam_pa": model.lam_pa,
             "spd_tolerance_pa": model.spd_tolerance_pa, "rest": model.sphere_rest_m, "b": model.sphere_b,
@@ -660,8 +664,12 @@ class FusedNewton:
         self._force_arrays = [_wp(t, wp.vec3d) for t in (self.sphere_x, self.scene_force, self.scene_normals)]
         self.threshold = torch.zeros(n_isl, **like)
         self.trust = torch.zeros(n_isl, **like)
-        self._work = [_wp(t) for t in (self.q, self.trial_q, self.tm, self.grad, self.hess, self.chol, self.dq,
-                                       self.first, self.band, self.stats)]  # fmt: skip
+        wk = Work()
+        wk.q, wk.trial_q, wk.tm, wk.grad, wk.hess, wk.chol, wk.dq = (
+            _wp(t) for t in (self.q, self.trial_q, self.tm, self.grad, self.hess, self.chol, self.dq)
+        )
+        wk.first, wk.band, wk.stats = _wp(self.first), _wp(self.band), _wp(self.stats)
+        self.work = wk
         self._limits = [_wp(self.threshold), _wp(self.trust)]
         self._step = StepData()
         self._pair_capacity = -1
@@ -719,10 +727,8 @@ class FusedNewton:
         self.q.copy_(q.reshape(-1))
         value = torch.zeros(n_isl, dtype=self.q.dtype, device=self.q.device)
         flagged = torch.zeros(n_isl, dtype=torch.int32, device=self.q.device)
-        q_w, _, tm, grad, hess = self._work[:5]
         wp.launch(evaluate_islands_kernel, dim=n_isl, device=self.device, inputs=[
-            self.bodies, self.scene, st, q_w, tm, int(derivatives), _wp(value), _wp(flagged), grad, hess,
-            self._work[8],
+            self.bodies, self.scene, st, self.work, int(derivatives), _wp(value), _wp(flagged),
         ])  # fmt: skip
         if not derivatives:
             return value, None, None, flagged.bool()
@@ -738,10 +744,9 @@ class FusedNewton:
         self.q.copy_(q0.reshape(-1))
         self.threshold.copy_(settings.tolerance * scale)
         self.trust.copy_(trust_m)
-        q, trial_q, tm, grad, hess, chol, dq, first, band, stats = self._work
         wp.launch(newton_islands_kernel, dim=n_isl, device=self.device, inputs=[
             self.bodies, self.scene, st, *self._limits, int(settings.iterations), int(settings.line_search_steps),
-            q, trial_q, tm, grad, hess, chol, dq, first, band, stats,
+            self.work,
         ])  # fmt: skip
         out = self.stats.to(torch.int64)
         if bool((out[:, STATUS] != SOLVED).any()):
@@ -764,9 +769,8 @@ class FusedNewton:
         from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
         n_isl, _ = self.shape
-        q, _, tm = self._work[:3]
         wp.launch(final_forces_kernel, dim=n_isl, device=self.device, inputs=[
-            self.bodies, self.scene, self._step, q, tm, *self._force_arrays, *self._pair_force_arrays,
+            self.bodies, self.scene, self._step, self.work, *self._force_arrays, *self._pair_force_arrays,
         ])  # fmt: skip
         p = int(self._step.num_pairs)
         return ContactForces(self.scene_force.clone(), self.scene_normals.clone(), self.sphere_x.clone(),
