@@ -226,6 +226,35 @@ def _pair_at(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), p: int)
 
 
 @wp.func
+def _affine_row(b: wp.array3d(dtype=wp.float64), o: int, s: int):
+    """The four basis values of sphere (o, s) of a one-handle object (its ``[x0; 1]`` weights)."""
+    return wp.vec4d(b[o, s, 0], b[o, s, 1], b[o, s, 2], b[o, s, 3])
+
+
+@wp.func
+def _add_affine_gradient(grad: wp.array(dtype=wp.float64), first: int, bo: wp.vec4d, g: wp.vec3d):
+    """grad[first + 4 r + a] += g[r] b[a]: a one-handle object's 12 entries (contiguous from ``first``)."""
+    for r in range(3):
+        for a in range(4):
+            grad[first + 4 * r + a] = grad[first + 4 * r + a] + g[r] * bo[a]
+
+
+@wp.func
+def _add_affine_block(hess: wp.array(dtype=wp.float64), n_size: int, base: int, first_o: int, bo: wp.vec4d,
+                      first_p: int, bp: wp.vec4d, h: wp.mat33d):  # fmt: skip
+    """hess[(r, a), (c, e)] += h[r, c] bo[a] bp[e] for the rows of one one-handle object and the columns of
+    another (island-local offsets ``first_o`` / ``first_p`` of the matrix at ``base``): direct addressing, no
+    index tables."""
+    for r in range(3):
+        for a in range(4):
+            row = base + (first_o + 4 * r + a) * n_size + first_p
+            for c in range(3):
+                w = h[r, c] * bo[a]
+                for e in range(4):
+                    hess[row + 4 * c + e] = hess[row + 4 * c + e] + w * bp[e]
+
+
+@wp.func
 def _evaluate(
     bd: Bodies,
     sc: SceneArgs,
@@ -248,6 +277,7 @@ def _evaluate(
     kp = bd.flat_index.shape[1] // 3
     start = isl * n_size
     base = start * n_size
+    matrix_base = start * n_size  # the island's matrix in hess (``base`` is reused below)
     if derivatives != 0:
         for r in range(n_size):
             grad[start + r] = _ZERO
@@ -325,16 +355,38 @@ def _evaluate(
             if active != 0:
                 value = value + h2 * e
                 if derivatives != 0:
-                    add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
-                    add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, kp, h2 * h)
+                    if cols == 4:  # one handle: its 12 unknowns are contiguous
+                        first_o = bd.flat_index[o, 0]
+                        bo = _affine_row(bd.b, o, s)
+                        _add_affine_gradient(grad, first_o, bo, h2 * g)
+                        local = first_o - start
+                        _add_affine_block(hess, n_size, matrix_base, local, bo, local, bo, h2 * h)
+                    else:
+                        add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
+                        add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, kp, h2 * h)
     # pair contact + friction of the island's candidate pairs (side i on one of its objects)
     for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
         active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, st.pair_order[k])
         if active != 0:
             value = value + h2 * e
             if derivatives != 0:
-                add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
-                                     h2 * g, h2 * h)  # fmt: skip
+                if cols_i == 4 and (oj < 0 or cols_j == 4):  # one-handle objects: direct addressing
+                    gs = h2 * g
+                    hs = h2 * h
+                    fi = bd.flat_index[oi, 0]
+                    bi = _affine_row(bd.b, oi, si)
+                    _add_affine_gradient(grad, fi, bi, gs)
+                    _add_affine_block(hess, n_size, matrix_base, fi - start, bi, fi - start, bi, hs)
+                    if oj >= 0:
+                        fj = bd.flat_index[oj, 0]
+                        bj = _affine_row(bd.b, oj, sj)
+                        _add_affine_gradient(grad, fj, bj, -gs)
+                        _add_affine_block(hess, n_size, matrix_base, fj - start, bj, fj - start, bj, hs)
+                        _add_affine_block(hess, n_size, matrix_base, fi - start, bi, fj - start, bj, -hs)
+                        _add_affine_block(hess, n_size, matrix_base, fj - start, bj, fi - start, bi, -hs)
+                else:
+                    add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
+                                         h2 * g, h2 * h)  # fmt: skip
                 if oj >= 0:  # the cross blocks widen both objects' bands
                     first_i = bd.flat_index[oi, 0] - start
                     first_j = bd.flat_index[oj, 0] - start
