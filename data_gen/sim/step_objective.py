@@ -32,6 +32,9 @@ from data_gen.sim.energy.scene_sdf import SceneDistance
 
 # largest island (unknowns) solved by FusedNewton: 100 one-handle objects
 FUSED_MAX_ISLAND_DOFS = 1200
+# largest padded matrix storage of one group (islands x N x N float64 entries, 128 MiB) that FusedNewton takes:
+# it keeps the matrix and its factor for every island of the group at the size of the largest one
+FUSED_MAX_MATRIX_ENTRIES = 1 << 24
 
 
 @dataclass
@@ -67,12 +70,10 @@ class SolveWorkspace:
                                         model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx])  # fmt: skip
                 self.elastic_groups.append((idx, cub_c, points))
         n_isl, size = layout.num_islands, layout.island_size
-        # every object one affine handle and islands small enough for one thread's dense Cholesky
-        self.fused = (
-            FusedNewton(model, layout, self.contact)
-            if bool(rigid.all()) and 0 < size <= FUSED_MAX_ISLAND_DOFS
-            else None
-        )
+        # every object one affine handle, islands small enough for one thread's envelope Cholesky, matrices
+        # small enough to keep twice more
+        fits = 0 < size <= FUSED_MAX_ISLAND_DOFS and n_isl * size * size <= FUSED_MAX_MATRIX_ENTRIES
+        self.fused = FusedNewton(model, layout, self.contact) if bool(rigid.all()) and fits else None
         dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
         self.padding = (torch.arange(size)[None, :] >= dofs[:, None]).to(DTYPE)  # (n_isl, N) unused entries
         self.island_mass_kg = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)
