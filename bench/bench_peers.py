@@ -19,6 +19,7 @@ that the resting pile heights agree. Writes bench/results/peers.json and peers.p
     python bench/bench_peers.py --scenes stiff_10 soft_5
     python bench/bench_peers.py --repeat 3    # fastest of 3 runs per engine and scene (noisy machines)
     python bench/bench_peers.py --batched     # also NewtPhys without the fused Newton kernel, side by side
+    python bench/bench_peers.py --quick       # stiff_10 and soft_5 only (make bench)
 """
 
 from __future__ import annotations
@@ -143,14 +144,21 @@ def pile_checks(com_m: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
-    parser.add_argument("--out", type=Path, default=RESULTS / "peers.json")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="results JSON (and its .png); default bench/results/peers.json, peers_quick.json with --quick")  # fmt: skip
     parser.add_argument("--batched", action="store_true",
                         help="also run NewtPhys without the fused Newton kernel (Simulator(fused_newton=False)) in the "
                              "same run: the kernel's own speed-up, measured side by side")  # fmt: skip
     parser.add_argument("--repeat", type=int, default=1,
                         help="run each engine this many times per scene and keep the fastest (CPU time) run of each: "
                              "the machines are noisy")  # fmt: skip
+    parser.add_argument("--quick", action="store_true",
+                        help="the two scenes with targets only (stiff_10, soft_5), one run each: what `make bench` runs")  # fmt: skip
     args = parser.parse_args(argv)
+    if args.quick:
+        args.scenes = [name for name in args.scenes if TARGET_CPU_RATIO[name] is not None]
+    if args.out is None:
+        args.out = RESULTS / ("peers_quick.json" if args.quick else "peers.json")
     if args.repeat < 1:
         parser.error(f"--repeat {args.repeat}: must be >= 1")
     rows = []
