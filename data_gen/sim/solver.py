@@ -283,6 +283,7 @@ class ImplicitEulerSolver:
         self._pair_table_cache: tuple[tuple[float, bytes], tuple[np.ndarray, np.ndarray]] | None = None
         # per object: (qdot tensor, its version, sphere velocities (n, 3) m/s, fastest speed m/s)
         self._velocity_cache: list[tuple[torch.Tensor, int, torch.Tensor, float] | None] = [None] * len(bodies)
+        self._record_spheres = True  # this step keeps per-sphere force records (see step)
         self.counters: dict[str, int] = dict.fromkeys(
             (
                 "evaluations",
@@ -306,8 +307,13 @@ class ImplicitEulerSolver:
         """Scene contact stiffness of object k per contact sphere: factor * mass / h^2 (N/m)."""
         return self.preset.contact_stiffness_factor * self.bodies[k].model.mass_kg / self.h**2
 
-    def step(self) -> StepStats:
+    def step(self, record_sphere_forces: bool = True) -> StepStats:
         """Advance all objects by ``dt_s``; raises SimulationError on non-finite values.
+
+        ``record_sphere_forces=False`` skips the per-sphere records (each body's ``contact_force_n``,
+        ``contact_partner``, ``partner_strength_n``: they keep an earlier step's values) for a step whose
+        records nobody reads (the simulator records every ``substeps_per_frame``-th step); the step's
+        statistics (per object pair forces, support, the scene forces a sleeper keeps) are the same.
 
         The broad phase (:class:`~data_gen.sim.contacts.BroadPhase`, once per step: hash grid, margin
         covering the step's motion) finds the contact candidates; sleepers in candidate contact with a fast
@@ -331,10 +337,12 @@ class ImplicitEulerSolver:
         stats.candidate_pairs = len(contacts.pairs)
         stats.islands = len(islands)
         stats.awake_objects = sum(len(isl) for isl in islands)
+        self._record_spheres = record_sphere_forces
         for b, asleep in zip(self.bodies, self.state.asleep):
             if not asleep:
                 b.static_force_n = torch.zeros_like(b.static_force_n)
-            b.reset_step_forces()
+            if record_sphere_forces:
+                b.reset_step_forces()
         supported = np.zeros(len(self.bodies), dtype=bool)
         by_substeps: dict[tuple[int, bool], list[list[int]]] = {}
         for island, num_sub in zip(islands, self._island_substeps(contacts, positions, speeds)):
@@ -722,17 +730,19 @@ class ImplicitEulerSolver:
         nrm = nrm / nrm.norm(dim=1, keepdim=True).clamp(min=1e-300)
         touching = (mag > 0).any(1).numpy()
         total_np, pos_np, nrm_np = total.numpy(), pos.numpy(), nrm.numpy()
-        # SimBody.reset_step_forces for all objects at once: the step's forces start from the scene's,
-        # pair forces are added below
-        contact_force = force.clone()
-        partner = torch.where(mag > 0, 0, NO_PARTNER)
+        record = self._record_spheres
+        if record:  # SimBody.reset_step_forces for all objects at once: the step's forces start from the
+            # scene's, pair forces are added below
+            contact_force = force.clone()
+            partner = torch.where(mag > 0, 0, NO_PARTNER)
         for slot, o in enumerate(objects):  # once per (sub)step: bookkeeping only
             b = self.bodies[o]
             k = b.contact.num_points
-            b.static_force_n = force[slot, :k]
-            b.contact_force_n = contact_force[slot, :k]
-            b.partner_strength_n = mag[slot, :k]
-            b.contact_partner = partner[slot, :k]
+            b.static_force_n = force[slot, :k]  # (kept by an object that falls asleep in this step)
+            if record:
+                b.contact_force_n = contact_force[slot, :k]
+                b.partner_strength_n = mag[slot, :k]
+                b.contact_partner = partner[slot, :k]
             if touching[slot]:
                 supported[o] = True
                 b.static_summary = (total_np[slot], pos_np[slot], nrm_np[slot])
@@ -817,40 +827,9 @@ class ImplicitEulerSolver:
         obj_a, obj_c = keys // n, keys % n
         fa, m = f_i.numpy()[rows], mag[rows]
 
-        # per-sphere records of the objects involved, concatenated (numpy views of their tensors)
-        involved = np.unique(np.concatenate([obj_a, obj_c]))
-        counts = [self.bodies[o].contact.num_points for o in involved]
-        first = np.zeros(n, dtype=np.int64)
-        first[involved] = np.cumsum([0] + counts[:-1])
         asleep = self.state.asleep
-        dest = np.concatenate([first[oi] + loc_i[rows], first[oj] + loc_j[rows]])
-        rank = np.concatenate([2 * group, 2 * group + 1])  # object pair, then side i before side j
-        order = np.argsort(rank, kind="stable")
-        scale_j = np.where(asleep[oj], self.h / self.dt, 1.0)
-        force = np.concatenate([self.bodies[o].contact_force_n.numpy() for o in involved])
-        np.add.at(force, dest[order], np.concatenate([fa, -fa * scale_j[:, None]])[order])  # in that order
-        strength = np.concatenate([self.bodies[o].partner_strength_n.numpy() for o in involved])
-        partner = np.concatenate([self.bodies[o].contact_partner.numpy() for o in involved])
-        m2 = np.concatenate([m, m])
-        best = np.zeros_like(strength)
-        np.maximum.at(best, dest, m2)
-        wins = (m2 == best[dest]) & (m2 > strength[dest])
-        none = 2 * len(keys)
-        winner = np.full(len(partner), none, dtype=np.int64)
-        np.minimum.at(winner, dest[wins], rank[wins])
-        # partner id per rank: side i (2 g) is pushed by c, side j (2 g + 1) by a
-        partner_of_rank = np.stack([self._object_id[obj_c], self._object_id[obj_a]], 1).reshape(-1)
-        taken = winner < none
-        partner = np.where(taken, partner_of_rank[np.minimum(winner, none - 1)], partner)
-        strength = np.maximum(best, strength)
-        ends = np.cumsum(counts)[:-1]
-        for o, f_o, s_o, p_o in zip(
-            involved, np.split(force, ends), np.split(strength, ends), np.split(partner, ends)
-        ):  # loop over objects
-            b = self.bodies[o]
-            b.contact_force_n = torch.from_numpy(f_o)
-            b.partner_strength_n = torch.from_numpy(s_o)
-            b.contact_partner = torch.from_numpy(p_o)
+        if self._record_spheres:
+            self._add_sphere_records(obj_a, obj_c, oi, oj, loc_i[rows], loc_j[rows], group, fa, m)
         supported[obj_a] = True
         supported[obj_c[asleep[obj_c]]] = True
 
@@ -867,6 +846,49 @@ class ImplicitEulerSolver:
             total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
             key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
             stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
+
+
+    def _add_sphere_records(self, obj_a: np.ndarray, obj_c: np.ndarray, oi: np.ndarray, oj: np.ndarray,
+                            loc_i: np.ndarray, loc_j: np.ndarray, group: np.ndarray, fa: np.ndarray,
+                            m: np.ndarray) -> None:  # fmt: skip
+        """The per-sphere part of :meth:`_accumulate_pair_forces` (its rules) for the active pairs: object
+        pairs (obj_a, obj_c) sorted, per pair its objects oi, oj, spheres loc_i, loc_j, object pair
+        ``group``, force on side i ``fa`` (N) and its magnitude ``m``."""
+        n = len(self.bodies)
+        asleep = self.state.asleep
+        # records of the objects involved, concatenated (numpy views of their tensors)
+        involved = np.unique(np.concatenate([obj_a, obj_c]))
+        counts = [self.bodies[o].contact.num_points for o in involved]
+        first = np.zeros(n, dtype=np.int64)
+        first[involved] = np.cumsum([0] + counts[:-1])
+        dest = np.concatenate([first[oi] + loc_i, first[oj] + loc_j])
+        rank = np.concatenate([2 * group, 2 * group + 1])  # object pair, then side i before side j
+        order = np.argsort(rank, kind="stable")
+        scale_j = np.where(asleep[oj], self.h / self.dt, 1.0)
+        force = np.concatenate([self.bodies[o].contact_force_n.numpy() for o in involved])
+        np.add.at(force, dest[order], np.concatenate([fa, -fa * scale_j[:, None]])[order])  # in that order
+        strength = np.concatenate([self.bodies[o].partner_strength_n.numpy() for o in involved])
+        partner = np.concatenate([self.bodies[o].contact_partner.numpy() for o in involved])
+        m2 = np.concatenate([m, m])
+        best = np.zeros_like(strength)
+        np.maximum.at(best, dest, m2)
+        wins = (m2 == best[dest]) & (m2 > strength[dest])
+        none = 2 * len(obj_a)
+        winner = np.full(len(partner), none, dtype=np.int64)
+        np.minimum.at(winner, dest[wins], rank[wins])
+        # partner id per rank: side i (2 g) is pushed by c, side j (2 g + 1) by a
+        partner_of_rank = np.stack([self._object_id[obj_c], self._object_id[obj_a]], 1).reshape(-1)
+        taken = winner < none
+        partner = np.where(taken, partner_of_rank[np.minimum(winner, none - 1)], partner)
+        strength = np.maximum(best, strength)
+        ends = np.cumsum(counts)[:-1]
+        for o, f_o, s_o, p_o in zip(
+            involved, np.split(force, ends), np.split(strength, ends), np.split(partner, ends)
+        ):  # loop over objects
+            b = self.bodies[o]
+            b.contact_force_n = torch.from_numpy(f_o)
+            b.partner_strength_n = torch.from_numpy(s_o)
+            b.contact_partner = torch.from_numpy(p_o)
 
 
 def _model_bytes(model: Model) -> int:

@@ -119,6 +119,7 @@ def _bookkeeping_solver(rng, num_points, asleep, h_s, dt_s):
     solver.state = State(empty, list(empty), np.array(asleep), np.zeros(len(num_points), dtype=np.int64))
     solver.h, solver.dt = h_s, dt_s
     solver._object_id = np.array([b.object_id for b in solver.bodies])
+    solver._record_spheres = True
     return solver
 
 
@@ -219,3 +220,32 @@ def test_object_pairs_are_the_sorted_distinct_pairs_of_candidates():
     pairs = np.stack([i[keep], j[keep]], 1)
     np.testing.assert_array_equal(broad_phase.object_pairs(pairs), np.unique(point_object[pairs], axis=0))
     assert broad_phase.object_pairs(np.zeros((0, 2), dtype=np.int64)).shape == (0, 2)
+
+
+def test_steps_without_sphere_records_change_no_recorded_value(monkeypatch):
+    """The simulator skips the per-sphere force records of steps between frames (nobody reads them): every
+    recorded array (per-point contact forces and partners included), every contact event and the energies
+    equal those of a run that keeps the records of every step, bit for bit. A thrown box hits a stack
+    (pairs between awake objects), and the stack falls asleep (frozen scene forces, sleeping partners)."""
+    from dataclasses import fields
+
+    from tests.sim.test_sim_fused_newton import _stack
+
+    lean = _stack(True, frames=45, throw=True)
+    step = ImplicitEulerSolver.step
+    monkeypatch.setattr(ImplicitEulerSolver, "step", lambda self, record_sphere_forces=True: step(self, True))
+    full = _stack(True, frames=45, throw=True)
+    assert any(tr.asleep.any() for tr in full.objects)  # the records of sleepers were exercised
+    assert any((tr.contact_partner > 0).any() for tr in full.objects)  # and object-object partners
+    for a, b in zip(lean.objects, full.objects, strict=True):
+        for f in fields(a):
+            if isinstance(getattr(a, f.name), np.ndarray):
+                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+    assert len(lean.collisions) == len(full.collisions)
+    for e_lean, e_full in zip(lean.collisions, full.collisions):
+        assert vars(e_lean).keys() == vars(e_full).keys()
+        for key, value in vars(e_full).items():
+            assert np.array_equal(vars(e_lean)[key], value), key
+    assert len(full.collisions) > 0
+    for key in full.energies_j:
+        assert np.array_equal(lean.energies_j[key], full.energies_j[key]), key

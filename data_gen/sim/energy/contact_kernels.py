@@ -441,8 +441,7 @@ class WarpContact:
             _wp(self.scene_force, wp.vec3d), _wp(self.scene_normals, wp.vec3d),
         ]  # fmt: skip
         self._scene_inputs = scene_inputs  # the recorded launch holds raw pointers to these
-        self._scene = wp.launch(scene_contact_kernel, dim=(n, s), inputs=scene_inputs, device=self.device,
-                                record_cmd=True)  # fmt: skip
+        self._scene = None  # recorded on the first evaluation (a fused solve reads only the buffers)
         self._pair = None
         self._pair_capacity = 0
         self._derivatives, self._smoothing, self._scale = True, 0.0, 1.0
@@ -461,7 +460,7 @@ class WarpContact:
         """The pair buffers (valid up to ``num_pairs``): ints (obj_i, sph_i, obj_j, sph_j), vectors (frozen
         x_j, normal0, x0_i, x0_j) and scalars (stiffness, radius sum, mu lam); allocated (64 pairs) if no
         solve had pairs yet."""
-        if self._pair is None:
+        if not self._pair_capacity:
             self._grow_pairs(1)
         return self._pair_buffers
 
@@ -488,10 +487,29 @@ class WarpContact:
         inputs = [*head, wp.float64(self._smoothing), *self._tail, _wp(self.pair_force, wp.vec3d),
                   _wp(self.pair_normals, wp.vec3d)]  # fmt: skip
         self._pair_inputs = inputs
-        self._pair = wp.launch(pair_contact_kernel, dim=capacity, inputs=inputs, device=self.device, record_cmd=True)
-        self._pair.set_param_at_index(self._tail_index(inputs, 2), int(self._derivatives))
-        self._pair.set_param_at_index(self._tail_index(inputs, 3), wp.float64(self._scale))
+        self._pair = None  # recorded on the first evaluation with pairs
         self._pair_capacity = capacity
+
+    def _record_launches(self) -> None:
+        """Record the scene launch, and the pair launch over the current pair buffers, with the current
+        parameters (smoothing, scale, derivatives, pair count)."""
+        if self._scene is None:
+            n, s = self.shape[:2]
+            self._scene = wp.launch(scene_contact_kernel, dim=(n, s), inputs=self._scene_inputs, device=self.device,
+                                    record_cmd=True)  # fmt: skip
+            self._set_parameters(self._scene, self._scene_inputs, self._scene_smoothing_index)
+        if self._pair is None and self._pair_capacity:
+            inputs = self._pair_inputs
+            self._pair = wp.launch(pair_contact_kernel, dim=self._pair_capacity, inputs=inputs, device=self.device,
+                                   record_cmd=True)  # fmt: skip
+            self._set_parameters(self._pair, inputs, self._pair_smoothing_index)
+        if self._pair is not None:
+            self._pair.set_dim(max(self.num_pairs, 1))
+
+    def _set_parameters(self, launch: wp.Launch, inputs: list, smoothing_index: int) -> None:
+        launch.set_param_at_index(smoothing_index, wp.float64(self._smoothing))
+        launch.set_param_at_index(self._tail_index(inputs, 2), int(self._derivatives))
+        launch.set_param_at_index(self._tail_index(inputs, 3), wp.float64(self._scale))
 
     def prepare(self, stiffness_n_m: torch.Tensor, friction_scale_n: torch.Tensor, start_x_m: torch.Tensor,
                 start_normals: torch.Tensor, smoothing_m: float, scale: float, pairs) -> None:  # fmt: skip
@@ -516,14 +534,14 @@ class WarpContact:
             for buffer, value in zip(scal, (pairs.stiffness_n_m, pairs.radius_sum_m,
                                             pairs.friction * pairs.normal_force_n)):  # fmt: skip
                 buffer[:p].copy_(value)
-            self._pair.set_dim(p)
+            if self._pair is not None:
+                self._pair.set_dim(p)
         if smoothing_m != self._smoothing or scale != self._scale:
             self._smoothing, self._scale = float(smoothing_m), float(scale)
-            self._scene.set_param_at_index(self._scene_smoothing_index, wp.float64(self._smoothing))
-            self._scene.set_param_at_index(self._tail_index(self._scene_inputs, 3), wp.float64(self._scale))
+            if self._scene is not None:
+                self._set_parameters(self._scene, self._scene_inputs, self._scene_smoothing_index)
             if self._pair is not None:
-                self._pair.set_param_at_index(self._pair_smoothing_index, wp.float64(self._smoothing))
-                self._pair.set_param_at_index(self._tail_index(self._pair_inputs, 3), wp.float64(self._scale))
+                self._set_parameters(self._pair, self._pair_inputs, self._pair_smoothing_index)
 
     def evaluate(self, tm: torch.Tensor, derivatives: bool = False) -> ContactOutputs:
         """Contact terms at padded states ``tm`` (n, 3, K) with the data of the last :meth:`prepare`."""
@@ -540,9 +558,11 @@ class WarpContact:
             self.hess.zero_()
         if derivatives != self._derivatives:
             self._derivatives = derivatives
-            self._scene.set_param_at_index(self._tail_index(self._scene_inputs, 2), int(derivatives))
-            if self._pair is not None:
-                self._pair.set_param_at_index(self._tail_index(self._pair_inputs, 2), int(derivatives))
+            for launch, inputs in ((self._scene, self._scene_inputs), (self._pair, getattr(self, "_pair_inputs", None))):
+                if launch is not None:
+                    launch.set_param_at_index(self._tail_index(inputs, 2), int(derivatives))
+        if self._scene is None or (p and self._pair is None):
+            self._record_launches()
         self._scene.launch()
         if p:
             self._pair.launch()

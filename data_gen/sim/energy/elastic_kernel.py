@@ -236,16 +236,21 @@ class WarpNeoHookean:
         self.needs_projection = torch.zeros(n, p, dtype=torch.int32, device=cub_c.device)
         self.strict = torch.zeros(n, dtype=torch.int32, device=cub_c.device)
         self._any_strict = False
-        constants = [columns.to(torch.int32).contiguous(), cub_c.contiguous(), volume_m3.contiguous(),
-                     mu_pa.contiguous(), lam_pa.contiguous(), tolerance_pa.contiguous(), self.strict]  # fmt: skip
-        arrays = [wp.from_torch(self.tm)] + [wp.from_torch(t) for t in constants]
+        self._constants = [columns.to(torch.int32).contiguous(), cub_c.contiguous(), volume_m3.contiguous(),
+                           mu_pa.contiguous(), lam_pa.contiguous(), tolerance_pa.contiguous(), self.strict]  # fmt: skip
+        self._device, self._dim = device, (n, p)
+        self._launch = None  # recorded on the first evaluation (a fused solve never evaluates here)
+        self._derivatives = True
+
+    def _record(self) -> None:
+        """Record the launch over the buffers (its arguments are packed once)."""
+        arrays = [wp.from_torch(self.tm)] + [wp.from_torch(t) for t in self._constants]
         outputs = [wp.from_torch(self.energy), wp.from_torch(self.piola, dtype=wp.mat33d),
                    wp.from_torch(self.hess, dtype=mat99d), wp.from_torch(self.needs_projection)]  # fmt: skip
-        self._arguments = [constants, arrays, outputs]  # the recorded launches hold raw pointers to these
+        self._arguments = [arrays, outputs]  # the recorded launch holds raw pointers to these
         self._derivatives_index = len(arrays)
-        self._launch = wp.launch(neo_hookean_points_kernel, dim=(n, p), inputs=[*arrays, 1, *outputs], device=device,
-                                 record_cmd=True)  # fmt: skip
-        self._derivatives = True
+        self._launch = wp.launch(neo_hookean_points_kernel, dim=self._dim, inputs=[*arrays, int(self._derivatives),
+                                 *outputs], device=self._device, record_cmd=True)  # fmt: skip
 
     def evaluate(self, tm: torch.Tensor, derivatives: bool,
                  strict: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:  # fmt: skip
@@ -259,7 +264,10 @@ class WarpNeoHookean:
         elif self._any_strict:
             self.strict.zero_()
             self._any_strict = False
-        if derivatives != self._derivatives:
+        if self._launch is None:
+            self._derivatives = derivatives
+            self._record()
+        elif derivatives != self._derivatives:
             self._launch.set_param_at_index(self._derivatives_index, int(derivatives))
             self._derivatives = derivatives
         self._launch.launch()
