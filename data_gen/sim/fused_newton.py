@@ -104,6 +104,8 @@ class Bodies:
     b: wp.array3d(dtype=wp.float64)  # (n, S, K)
     radius: wp.array2d(dtype=wp.float64)  # (n, S) m
     b_norm: wp.array2d(dtype=wp.float64)  # (n, S) |b|: a sphere moves at most |Tm - Tm_n|_F |b| from its start
+    extreme_count: wp.array(dtype=wp.int32)  # (n,) spheres on the hull of the object's basis rows
+    extreme_index: wp.array2d(dtype=wp.int32)  # (n, S) those spheres first (Model.sphere_extreme)
 
 
 @wp.struct
@@ -461,28 +463,51 @@ def _newton_direction(chol: wp.array(dtype=wp.float64), first: wp.array(dtype=wp
 
 @wp.func
 def _update_norms(bd: Bodies, dq: wp.array(dtype=wp.float64), isl: int):
-    """(|dq|_M, largest contact-sphere displacement in m) of island ``isl``'s update ``dq``."""
+    """(|dq|_M, largest contact-sphere displacement in m) of island ``isl``'s update ``dq``. For one-handle
+    objects the unknowns are addressed directly and only the spheres on the hull of their basis rows are
+    visited (:attr:`Model.sphere_extreme`): the same sums as the general loops, in the same order."""
     kp = bd.flat_index.shape[1] // 3
     mass2 = _ZERO
     motion = _ZERO
     for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
         o = bd.island_objects[slot]
         cols = bd.columns[o]
+        f = bd.flat_index[o, 0]
         for r in range(3):
             for a in range(cols):
                 row = r * kp + a
                 m_d = _ZERO
                 for s in range(3):
                     for c in range(cols):
-                        m_d = m_d + bd.mass_matrix[o, row, s * kp + c] * dq[bd.flat_index[o, s * kp + c]]
-                mass2 = mass2 + dq[bd.flat_index[o, row]] * m_d
-        for s in range(bd.radius.shape[1]):
-            u = wp.vec3d(_ZERO, _ZERO, _ZERO)
-            for a in range(cols):
-                ba = bd.b[o, s, a]
-                u = u + ba * wp.vec3d(dq[bd.flat_index[o, a]], dq[bd.flat_index[o, kp + a]],
-                                      dq[bd.flat_index[o, 2 * kp + a]])  # fmt: skip
-            motion = wp.max(motion, wp.length(u))
+                        fc = f + 4 * s + c  # one handle: its 12 unknowns are contiguous
+                        if cols != 4:
+                            fc = bd.flat_index[o, s * kp + c]
+                        m_d = m_d + bd.mass_matrix[o, row, s * kp + c] * dq[fc]
+                fr = f + 4 * r + a
+                if cols != 4:
+                    fr = bd.flat_index[o, row]
+                mass2 = mass2 + dq[fr] * m_d
+        if cols == 4:  # the update's columns loaded once
+            d0 = wp.vec3d(dq[f], dq[f + 4], dq[f + 8])
+            d1 = wp.vec3d(dq[f + 1], dq[f + 5], dq[f + 9])
+            d2 = wp.vec3d(dq[f + 2], dq[f + 6], dq[f + 10])
+            d3 = wp.vec3d(dq[f + 3], dq[f + 7], dq[f + 11])
+            for e in range(bd.extreme_count[o]):  # the largest |dTm b| is at a vertex of the rows' hull
+                s = bd.extreme_index[o, e]
+                u = wp.vec3d(_ZERO, _ZERO, _ZERO)  # the same sums, in the same order, as below
+                u = u + bd.b[o, s, 0] * d0
+                u = u + bd.b[o, s, 1] * d1
+                u = u + bd.b[o, s, 2] * d2
+                u = u + bd.b[o, s, 3] * d3
+                motion = wp.max(motion, wp.length(u))
+        else:
+            for s in range(bd.radius.shape[1]):
+                u = wp.vec3d(_ZERO, _ZERO, _ZERO)
+                for a in range(cols):
+                    ba = bd.b[o, s, a]
+                    u = u + ba * wp.vec3d(dq[bd.flat_index[o, a]], dq[bd.flat_index[o, kp + a]],
+                                          dq[bd.flat_index[o, 2 * kp + a]])  # fmt: skip
+                motion = wp.max(motion, wp.length(u))
     return wp.sqrt(wp.max(mass2, _ZERO)), motion
 
 
@@ -672,6 +697,9 @@ class FusedNewton:
             "cub_volume": model.cub_volume_m3, "mu_pa": model.mu_pa, "lam_pa": model.lam_pa,
             "spd_tolerance_pa": model.spd_tolerance_pa, "rest": model.sphere_rest_m, "b": model.sphere_b,
             "radius": model.sphere_radius_m, "b_norm": model.sphere_b.norm(dim=2),
+            "extreme_count": model.sphere_extreme.sum(1).to(i32),
+            # stable sort: each object's hull spheres first, in index order
+            "extreme_index": torch.sort((~model.sphere_extreme).to(i32), dim=1, stable=True).indices.to(i32),
         }  # fmt: skip
         self._keep = {key: value.contiguous() for key, value in self._keep.items()}
         bd = Bodies()

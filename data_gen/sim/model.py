@@ -20,7 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
+import numpy as np
 import torch
+from scipy.spatial import ConvexHull, QhullError
 
 from data_gen.sim.contact_points import ContactPoints
 from data_gen.sim.reduced import DTYPE, NEAR_SPD_TOLERANCE, ReducedObject
@@ -44,6 +46,10 @@ class Model:
         sphere_b: (n, S, K) affine basis rows of the sphere centres.
         sphere_radius_m: (n, S) radii (0 on padding).
         sphere_valid: (n, S) bool.
+        sphere_extreme: (n, S) bool: spheres whose basis rows are vertices of the convex hull of the object's
+            rows (every valid sphere where that hull is not computed: more than one handle, or degenerate).
+            A norm of a linear map of the rows, such as a sphere's displacement ``|dTm b|``, is largest at
+            one of them (convexity), so the largest sphere motion needs only these.
         friction: (n,) Coulomb coefficients.
     """
 
@@ -60,6 +66,7 @@ class Model:
     sphere_b: torch.Tensor
     sphere_radius_m: torch.Tensor
     sphere_valid: torch.Tensor
+    sphere_extreme: torch.Tensor
     friction: torch.Tensor
 
     @staticmethod
@@ -79,6 +86,7 @@ class Model:
         sphere_b = torch.zeros(n, s, k, dtype=DTYPE)
         sphere_radius = torch.zeros(n, s, dtype=DTYPE)
         sphere_valid = torch.zeros(n, s, dtype=torch.bool)
+        sphere_extreme = torch.zeros(n, s, dtype=torch.bool)
         for o, (m, c) in enumerate(zip(models, contacts)):  # once, at set-up
             k_o = 4 * m.num_handles
             index = padded_index(m.num_handles, k)
@@ -94,6 +102,7 @@ class Model:
             sphere_b[o, : c.num_points, :k_o] = c.b
             sphere_radius[o, : c.num_points] = c.radius_m
             sphere_valid[o, : c.num_points] = True
+            sphere_extreme[o, : c.num_points] = torch.from_numpy(extreme_rows(c.b.numpy()))
         mu = torch.tensor([m.mu_pa for m in models], dtype=DTYPE)
         return Model(
             num_handles=torch.tensor([m.num_handles for m in models], dtype=torch.int64),
@@ -109,6 +118,7 @@ class Model:
             sphere_b=sphere_b,
             sphere_radius_m=sphere_radius,
             sphere_valid=sphere_valid,
+            sphere_extreme=sphere_extreme,
             friction=torch.tensor(list(friction), dtype=DTYPE),
         )
 
@@ -128,6 +138,25 @@ class Model:
     def sphere_positions(self, tm: torch.Tensor) -> torch.Tensor:
         """World sphere centres (n, S, 3), m, of padded states ``tm`` (n, 3, K): ``x = x0 + Tm b``."""
         return self.sphere_rest_m + self.sphere_b @ tm.transpose(1, 2)
+
+
+def extreme_rows(b: np.ndarray) -> np.ndarray:
+    """(k,) bool: which of an object's sphere basis rows ``b`` (k, 4H) are vertices of their convex hull.
+
+    For one affine handle the rows are ``[x0; 1]`` and the hull is the 3-D hull of the rest centres (qhull);
+    otherwise, or when that hull is degenerate (fewer than four points, all in a plane), every row counts.
+    qhull treats points within round-off of a facet as on it, so the largest ``|dTm b|`` over the vertices
+    equals the largest over all rows to about 1e-15 relative."""
+    every = np.ones(len(b), dtype=bool)
+    if b.ndim != 2 or b.shape[1] != 4 or len(b) < 5 or np.ptp(b[:, 3]) != 0.0:
+        return every
+    try:
+        vertices = ConvexHull(b[:, :3]).vertices
+    except QhullError:
+        return every
+    out = np.zeros(len(b), dtype=bool)
+    out[vertices] = True
+    return out
 
 
 def padded_index(num_handles: int, columns: int) -> torch.Tensor:
