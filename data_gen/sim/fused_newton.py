@@ -106,6 +106,8 @@ class Bodies:
     b_norm: wp.array2d(dtype=wp.float64)  # (n, S) |b|: a sphere moves at most |Tm - Tm_n|_F |b| from its start
     extreme_count: wp.array(dtype=wp.int32)  # (n,) spheres on the hull of the object's basis rows
     extreme_index: wp.array2d(dtype=wp.int32)  # (n, S) those spheres first (Model.sphere_extreme)
+    island_mass: wp.array(dtype=wp.float64)  # (n_isl,) kg
+    island_radius: wp.array(dtype=wp.float64)  # (n_isl,) smallest median contact radius of the island, m
 
 
 @wp.struct
@@ -184,6 +186,38 @@ def _scene_margins(bd: Bodies, sc: SceneArgs, st: StepData, isl: int):
                                              sc.point_search_m, sdf, n)  # fmt: skip
                 m = sdf - bd.radius[o, s]
             st.margin[o, s] = m
+
+
+@wp.func
+def _step_limits(bd: Bodies, st: StepData, isl: int, tolerance: wp.float64, gravity_norm: wp.float64):
+    """(convergence threshold |dq|_M, trust radius m) of island ``isl``'s step, as ``StepObjective``'s
+    ``tolerance * motion_scale()`` and ``trust_radius()``: the predicted motion ``Tm_pred - Tm_n`` in the
+    mass norm and as the largest sphere displacement, plus what gravity adds in the step."""
+    kp = bd.flat_index.shape[1] // 3
+    mass2 = _ZERO
+    moved = _ZERO
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        cols = bd.columns[o]
+        for r in range(3):
+            for a in range(cols):
+                m_d = _ZERO
+                for c_r in range(3):
+                    for c in range(cols):
+                        m_d = m_d + bd.mass_matrix[o, r * kp + a, c_r * kp + c] * (st.tm_pred[o, c_r, c] - st.tm_start[o, c_r, c])
+                mass2 = mass2 + (st.tm_pred[o, r, a] - st.tm_start[o, r, a]) * m_d
+        for e in range(bd.extreme_count[o]):  # the largest displacement is at a vertex of the rows' hull
+            s = bd.extreme_index[o, e]
+            u = wp.vec3d(_ZERO, _ZERO, _ZERO)
+            for a in range(cols):
+                u = u + bd.b[o, s, a] * wp.vec3d(st.tm_pred[o, 0, a] - st.tm_start[o, 0, a],
+                                                 st.tm_pred[o, 1, a] - st.tm_start[o, 1, a],
+                                                 st.tm_pred[o, 2, a] - st.tm_start[o, 2, a])  # fmt: skip
+            moved = wp.max(moved, wp.length(u))
+    root_mass = wp.sqrt(bd.island_mass[isl])
+    scale = wp.sqrt(wp.max(mass2, _ZERO)) + st.h2 * gravity_norm * root_mass + wp.float64(1e-9) * root_mass
+    trust = wp.float64(2.0) * moved + st.h2 * gravity_norm + bd.island_radius[isl]
+    return tolerance * scale, trust
 
 
 @wp.func
@@ -521,14 +555,23 @@ def newton_islands_kernel(
     iterations: int,
     line_search_steps: int,
     wk: Work,
+    limits_given: int,
+    tolerance: wp.float64,
+    gravity_norm: wp.float64,
 ):
     """Island ``isl``: Newton's method from ``wk.q`` (its part of the flat island vectors, overwritten with
-    the result); ``wk.stats`` (n_isl, NUM_STATS) receives the status and counters."""
+    the result); ``wk.stats`` (n_isl, NUM_STATS) receives the status and counters. Unless ``limits_given``,
+    the convergence threshold and trust radius are computed here (:func:`_step_limits`) and written to
+    ``threshold`` / ``trust_m``."""
     q, trial_q, tm, grad, hess, chol, dq = wk.q, wk.trial_q, wk.tm, wk.grad, wk.hess, wk.chol, wk.dq
     first, band, stats = wk.first, wk.band, wk.stats
     isl = wp.tid()
     n_size = bd.island_size
     start = isl * n_size
+    if limits_given == 0:
+        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
+        threshold[isl] = thr_isl
+        trust_m[isl] = trust_isl
     thr = threshold[isl]
     trust = trust_m[isl]
     have = int(0)  # derivatives at q already in grad / hess (from an accepted first trial)
@@ -677,7 +720,8 @@ class FusedNewton:
     solve (see the module docstring). Built once per group of islands next to its
     :class:`data_gen.sim.step_objective.SolveWorkspace`, whose contact buffers it reads."""
 
-    def __init__(self, model: Model, layout: DofLayout, contact: WarpContact) -> None:
+    def __init__(self, model: Model, layout: DofLayout, contact: WarpContact, island_mass_kg: torch.Tensor,
+                 min_median_radius_m: torch.Tensor) -> None:  # fmt: skip
         wp.init()
         self.contact = contact
         self.device = contact.device
@@ -700,6 +744,7 @@ class FusedNewton:
             "extreme_count": model.sphere_extreme.sum(1).to(i32),
             # stable sort: each object's hull spheres first, in index order
             "extreme_index": torch.sort((~model.sphere_extreme).to(i32), dim=1, stable=True).indices.to(i32),
+            "island_mass": island_mass_kg, "island_radius": min_median_radius_m,
         }  # fmt: skip
         self._keep = {key: value.contiguous() for key, value in self._keep.items()}
         bd = Bodies()
@@ -781,6 +826,7 @@ class FusedNewton:
         self.tm_start.copy_(objective.tm_n)
         g = objective.gravity.tolist()
         st.gravity = wp.vec3d(g[0], g[1], g[2])
+        self._gravity_norm = float(objective.gravity.norm())
         st.h2 = wp.float64(objective.h2)
         st.smoothing_m = wp.float64(c.smoothing_m)
         p = int(c.num_pairs)
@@ -814,19 +860,25 @@ class FusedNewton:
             return value, None, None, flagged.bool()
         return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size).clone(), flagged.bool()
 
-    def solve(self, objective: StepObjective, q0: torch.Tensor, scale: torch.Tensor, trust_m: torch.Tensor,
-              settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
+    def solve(self, objective: StepObjective, q0: torch.Tensor, scale: torch.Tensor | None,
+              trust_m: torch.Tensor | None, settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
         """Minimise ``objective`` (a :class:`StepObjective` on this workspace's contact buffers, as just
         built: its ``prepare`` is the last) on every island from ``q0`` (n_isl, N); ``scale`` and ``trust_m``
-        (n_isl,) as in ``minimise``. None when an island needs ``minimise``."""
+        (n_isl,) as in ``minimise``, or both None: the kernel computes them as ``objective.motion_scale()``
+        and ``objective.trust_radius()`` do (then in ``self.threshold``, ``tolerance * scale``, and
+        ``self.trust``). None when an island needs ``minimise``."""
         n_isl, size = self.shape
         st = self._step_data(objective)
         self.q.copy_(q0.reshape(-1))
-        self.threshold.copy_(settings.tolerance * scale)
-        self.trust.copy_(trust_m)
+        given = scale is not None
+        if given != (trust_m is not None):
+            raise ValueError("FusedNewton.solve: give both scale and trust_m, or neither")
+        if given:
+            self.threshold.copy_(settings.tolerance * scale)
+            self.trust.copy_(trust_m)
         wp.launch(newton_islands_kernel, dim=n_isl, device=self.device, inputs=[
             self.bodies, self.scene, st, *self._limits, int(settings.iterations), int(settings.line_search_steps),
-            self.work,
+            self.work, int(given), wp.float64(settings.tolerance), wp.float64(self._gravity_norm),
         ])  # fmt: skip
         out = self.stats.to(torch.int64)
         if bool((out[:, STATUS] != SOLVED).any()):

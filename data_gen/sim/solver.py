@@ -666,9 +666,9 @@ class ImplicitEulerSolver:
         settings = NewtonSettings(
             self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps
         )
-        scale, trust = objective.motion_scale(), objective.trust_radius()
         fused = objective.workspace.fused if self.fused_newton else None
-        result = None if fused is None else fused.solve(objective, q0, scale, trust, settings)
+        # the kernel computes the step's convergence scale and trust radius itself
+        result = None if fused is None else fused.solve(objective, q0, None, None, settings)
         from_kernel = result is not None  # the recorder reads the forces the kernel computes at its result
         if fused is not None:
             if result is None:
@@ -676,8 +676,8 @@ class ImplicitEulerSolver:
             else:
                 self.counters["fused_island_solves"] += len(islands)
         if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
-            result = minimise(objective, q0, scale, trust, settings, on_gradient=check_gradient,
-                              on_indefinite=indefinite)  # fmt: skip
+            result = minimise(objective, q0, objective.motion_scale(), objective.trust_radius(), settings,
+                              on_gradient=check_gradient, on_indefinite=indefinite)  # fmt: skip
         for key, value in result.counters.items():
             self.counters[key] += value
         tm = layout.to_objects(result.q)

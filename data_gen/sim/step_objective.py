@@ -72,8 +72,6 @@ class SolveWorkspace:
         n_isl, size = layout.num_islands, layout.island_size
         # every object one affine handle, islands small enough for one thread's envelope Cholesky, matrices
         # small enough to keep twice more
-        fits = 0 < size <= FUSED_MAX_ISLAND_DOFS and n_isl * size * size <= FUSED_MAX_MATRIX_ENTRIES
-        self.fused = FusedNewton(model, layout, self.contact) if bool(rigid.all()) and fits else None
         dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
         self.padding = (torch.arange(size)[None, :] >= dofs[:, None]).to(DTYPE)  # (n_isl, N) unused entries
         self.island_mass_kg = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)
@@ -81,6 +79,12 @@ class SolveWorkspace:
         median = radii.nanmedian(dim=1).values
         self.min_median_radius_m = torch.full((n_isl,), float("inf"), dtype=DTYPE).scatter_reduce(
             0, layout.island, median, reduce="amin"
+        )
+        fits = 0 < size <= FUSED_MAX_ISLAND_DOFS and n_isl * size * size <= FUSED_MAX_MATRIX_ENTRIES
+        self.fused = (
+            FusedNewton(model, layout, self.contact, self.island_mass_kg, self.min_median_radius_m)
+            if bool(rigid.all()) and fits
+            else None
         )
 
 

@@ -39,7 +39,7 @@ def _objective(scene: StaticScene, seed: int = 3, speed: float = 0.3, handles: t
         cols = 4 * int(model.num_handles[o])
         tmdot[o, :, :cols] = speed * torch.randn(3, cols, generator=gen, dtype=D) / cols
     objective = StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs)
-    fused = FusedNewton(model, layout, objective.contact)
+    fused = FusedNewton(model, layout, objective.contact, objective.island_mass_kg, objective.min_median_radius_m)
     return objective, fused, layout.to_islands(tm + H_S * tmdot)
 
 
@@ -104,7 +104,8 @@ def test_fused_solve_matches_minimise_on_real_steps(throw):
     for (objective, q0, scale, trust, settings), trust_factor in zip(solves, itertools.cycle([1.0, 1.0, 0.005])):
         # every third solve with a tiny trust radius: updates cut by it (the search starts below alpha = 1)
         trust = trust_factor * trust
-        fused = FusedNewton(objective.model, objective.layout, objective.contact)
+        fused = FusedNewton(objective.model, objective.layout, objective.contact, objective.island_mass_kg,
+                            objective.min_median_radius_m)
         ref = minimise(objective, q0, scale, trust, settings)
         out = fused.solve(objective, q0, scale, trust, settings)
         assert out is not None, "the kernel handed a recorded step back"
@@ -120,6 +121,12 @@ def test_fused_solve_matches_minimise_on_real_steps(throw):
         assert bool(((v_out - v_ref).abs() <= 1e-9 * v_ref.abs()).all())
         assert out.counters["evaluations_with_derivatives"] >= int(out.iterations.sum())
         assert (out.iterations >= 1).all() and (out.iterations <= settings.iterations).all()
+        if trust_factor == 1.0:  # the kernel's own threshold and trust radius: StepObjective's, to round-off
+            own = fused.solve(objective, q0, None, None, settings)
+            torch.testing.assert_close(fused.threshold, settings.tolerance * scale, rtol=1e-12, atol=0.0)
+            torch.testing.assert_close(fused.trust, trust, rtol=1e-12, atol=0.0)
+            assert torch.equal(own.iterations, out.iterations) and torch.equal(own.converged, out.converged)
+            assert bool((objective.mass_norm(own.q - out.q) <= 1e-3 * settings.tolerance * scale).all())
     assert trust_limited > 0
 
 
@@ -148,7 +155,8 @@ def test_fused_solve_projects_an_inverted_block_and_hands_back_a_non_finite_stat
     as the batched path does (equal matrices); a non-finite start makes the kernel hand the solve back (None)
     to ``minimise``, which names the object."""
     objective, q0, scale, trust, settings = _captured_solves(1)[0]
-    fused = FusedNewton(objective.model, objective.layout, objective.contact)
+    fused = FusedNewton(objective.model, objective.layout, objective.contact, objective.island_mass_kg,
+                            objective.min_median_radius_m)
     solved = fused.solve(objective, q0, scale, trust, settings)
     assert bool(solved.converged.all()) and solved.counters["unconverged_solves"] == 0
     layout = objective.layout
