@@ -254,13 +254,18 @@ class PairContact:
     normal_ji: torch.Tensor  # unit vector from j to i
 
 
+def pair_depth(x_i: torch.Tensor, x_j: torch.Tensor, radius_sum_m: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Penetration depth (P,) m (radius sum minus centre distance) and unit normal j -> i (P, 3) of sphere
+    pairs (what :func:`pair_contact` computes its terms from)."""
+    delta = x_i - x_j
+    dist = delta.norm(dim=1).clamp(min=1e-12)
+    return radius_sum_m - dist, delta / dist[:, None]
+
+
 def pair_contact(
     x_i: torch.Tensor, x_j: torch.Tensor, radius_sum_m: torch.Tensor, stiffness_n_m: torch.Tensor
 ) -> PairContact:
     """Penalty between sphere pairs; ``d2E/dx_i dx_i = hess``, ``d2E/dx_i dx_j = -hess``."""
-    delta = x_i - x_j
-    dist = delta.norm(dim=1).clamp(min=1e-12)
-    n = delta / dist[:, None]
-    depth = radius_sum_m - dist
+    depth, n = pair_depth(x_i, x_j, radius_sum_m)
     energy, grad_i, hess = point_terms.penalty(depth, n, stiffness_n_m, True)
     return PairContact(float(energy.sum()), grad_i, hess, depth, n)

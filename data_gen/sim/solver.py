@@ -53,7 +53,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 import torch
 
-from data_gen.sim.contact import pair_contact
+from data_gen.sim.contact import pair_contact, pair_depth
 from data_gen.sim.contact_points import ContactPoints
 from data_gen.sim.contacts import BroadPhase, Contacts
 from data_gen.sim.energy import point_terms
@@ -563,9 +563,11 @@ class ImplicitEulerSolver:
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
         rs = bp.radii_all[gi_t] + bp.radii_all[gj_t]
         x0i, x0j = x_all[gi_t], x_all[gj_t]
-        start = pair_contact(x0i, x0j, rs, k) if len(gi) else None
-        lam = (k * start.depth_m.clamp(min=0.0)) if start is not None else torch.zeros(0, dtype=DTYPE)
-        n0 = start.normal_ji if start is not None else torch.zeros(0, 3, dtype=DTYPE)
+        if len(gi):  # the frozen normal force and normal of the start state
+            depth, n0 = pair_depth(x0i, x0j, rs)
+            lam = k * depth.clamp(min=0.0)
+        else:
+            lam, n0 = torch.zeros(0, dtype=DTYPE), torch.zeros(0, 3, dtype=DTYPE)
         return _PairSet(oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, gi_t, gj_t)
 
     # ------------------------------------------------------------------ Newton on a group of islands
