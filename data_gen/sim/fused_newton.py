@@ -26,6 +26,7 @@ so this path suits many small islands; large islands want the batched path.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import torch
@@ -51,6 +52,7 @@ from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSe
 from data_gen.sim.static_scene import _FAR_M, boxes_distance, points_distance
 
 if TYPE_CHECKING:
+    from data_gen.sim.energy.pair_contact import PairSet
     from data_gen.sim.step_objective import ContactForces, StepObjective
 
 wp.set_module_options({"enable_backward": False})  # forward only: no adjoint code to compile
@@ -128,6 +130,8 @@ class StepData:
     num_pairs: int
     pair_start: wp.array(dtype=wp.int32)  # (n_isl + 1,) island i's pairs: pair_order[start[i]:start[i+1]]
     pair_order: wp.array(dtype=wp.int32)  # the pairs sorted by the island of side i
+    live_order: wp.array(dtype=wp.int32)  # island i's evaluated pairs: live_order[start[i]:start[i] + live[i]]
+    live_count: wp.array(dtype=wp.int32)  # (n_isl,) (all of them, except in sub-steps: see _substep_start)
     obj_i: wp.array(dtype=wp.int32)
     sph_i: wp.array(dtype=wp.int32)
     obj_j: wp.array(dtype=wp.int32)
@@ -401,8 +405,8 @@ def _evaluate(
                         add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
                         add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, kp, h2 * h)
     # pair contact + friction of the island's candidate pairs (side i on one of its objects)
-    for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
-        active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, st.pair_order[k])
+    for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
+        active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, st.live_order[k])
         if active != 0:
             value = value + h2 * e
             if derivatives != 0:
@@ -545,40 +549,20 @@ def _update_norms(bd: Bodies, dq: wp.array(dtype=wp.float64), isl: int):
     return wp.sqrt(wp.max(mass2, _ZERO)), motion
 
 
-@wp.kernel
-def newton_islands_kernel(
-    bd: Bodies,
-    sc: SceneArgs,
-    st: StepData,
-    threshold: wp.array(dtype=wp.float64),
-    trust_m: wp.array(dtype=wp.float64),
-    iterations: int,
-    line_search_steps: int,
-    wk: Work,
-    limits_given: int,
-    tolerance: wp.float64,
-    gravity_norm: wp.float64,
-):
-    """Island ``isl``: Newton's method from ``wk.q`` (its part of the flat island vectors, overwritten with
-    the result); ``wk.stats`` (n_isl, NUM_STATS) receives the status and counters. Unless ``limits_given``,
-    the convergence threshold and trust radius are computed here (:func:`_step_limits`) and written to
-    ``threshold`` / ``trust_m``."""
+@wp.func
+def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp.float64, trust: wp.float64,
+            iterations: int, line_search_steps: int):  # fmt: skip
+    """Newton's method on island ``isl`` from ``wk.q`` (its part of the flat island vectors, overwritten with the
+    result), convergence threshold ``thr`` (|dq|_M) and trust radius ``trust`` (m); ``wk.stats[isl]`` receives
+    the status and counters. The step's start data (``st``) must be set and the scene margins computed."""
     q, trial_q, tm, grad, hess, chol, dq = wk.q, wk.trial_q, wk.tm, wk.grad, wk.hess, wk.chol, wk.dq
     first, band, stats = wk.first, wk.band, wk.stats
-    isl = wp.tid()
     n_size = bd.island_size
     start = isl * n_size
-    if limits_given == 0:
-        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
-        threshold[isl] = thr_isl
-        trust_m[isl] = trust_isl
-    thr = threshold[isl]
-    trust = trust_m[isl]
     have = int(0)  # derivatives at q already in grad / hess (from an accepted first trial)
     value = _ZERO
     for k in range(NUM_STATS):
         stats[isl, k] = 0
-    _scene_margins(bd, sc, st, isl)
     for it in range(iterations):
         if have == 0:
             _load_state(bd, q, tm, isl)
@@ -650,6 +634,31 @@ def newton_islands_kernel(
 
 
 @wp.kernel
+def newton_islands_kernel(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    threshold: wp.array(dtype=wp.float64),
+    trust_m: wp.array(dtype=wp.float64),
+    iterations: int,
+    line_search_steps: int,
+    wk: Work,
+    limits_given: int,
+    tolerance: wp.float64,
+    gravity_norm: wp.float64,
+):
+    """Island ``isl``: :func:`_newton` from ``wk.q``. Unless ``limits_given``, the convergence threshold and
+    trust radius are computed here (:func:`_step_limits`) and written to ``threshold`` / ``trust_m``."""
+    isl = wp.tid()
+    if limits_given == 0:
+        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
+        threshold[isl] = thr_isl
+        trust_m[isl] = trust_isl
+    _scene_margins(bd, sc, st, isl)
+    _newton(bd, sc, st, wk, isl, threshold[isl], trust_m[isl], iterations, line_search_steps)
+
+
+@wp.kernel
 def evaluate_islands_kernel(
     bd: Bodies,
     sc: SceneArgs,
@@ -669,22 +678,22 @@ def evaluate_islands_kernel(
     flagged[isl] = f
 
 
-@wp.kernel
-def final_forces_kernel(
+@wp.func
+def _final_forces(
     bd: Bodies,
     sc: SceneArgs,
     st: StepData,
     wk: Work,
+    isl: int,
     sphere_x: wp.array2d(dtype=wp.vec3d),
     scene_force: wp.array2d(dtype=wp.vec3d),
     scene_normal: wp.array2d(dtype=wp.vec3d),
     pair_force: wp.array(dtype=wp.vec3d),
     pair_normal: wp.array(dtype=wp.vec3d),
 ):
-    """Island ``isl`` at ``q`` (the solve's result; its margins still hold): every sphere's position (m),
+    """Island ``isl`` at ``wk.q`` (a solve's result; its margins still hold): every sphere's position (m),
     scene contact + friction force (N) and scene normal, and every pair's force on side i (N) and normal
     j -> i, zero where inactive: what :meth:`StepObjective.forces` returns, for the recorder."""
-    isl = wp.tid()
     tm = wk.tm
     _load_state(bd, wk.q, tm, isl)
     zero = wp.vec3d(_ZERO, _ZERO, _ZERO)
@@ -702,13 +711,169 @@ def final_forces_kernel(
                     scene_force[o, s] = -g
                     scene_normal[o, s] = normal
     for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
-        p = st.pair_order[k]
+        pair_force[st.pair_order[k]] = zero
+        pair_normal[st.pair_order[k]] = zero
+    for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
+        p = st.live_order[k]
         active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, p)
-        pair_force[p] = zero
-        pair_normal[p] = zero
         if active != 0:
             pair_force[p] = -g
             pair_normal[p] = normal
+
+
+@wp.kernel
+def final_forces_kernel(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    wk: Work,
+    sphere_x: wp.array2d(dtype=wp.vec3d),
+    scene_force: wp.array2d(dtype=wp.vec3d),
+    scene_normal: wp.array2d(dtype=wp.vec3d),
+    pair_force: wp.array(dtype=wp.vec3d),
+    pair_normal: wp.array(dtype=wp.vec3d),
+):
+    """:func:`_final_forces` of every island (one thread each)."""
+    _final_forces(bd, sc, st, wk, wp.tid(), sphere_x, scene_force, scene_normal, pair_force, pair_normal)
+
+
+@wp.struct
+class Substeps:
+    """What :func:`substeps_kernel` needs beyond one solve's data: the states it advances, the per-object and
+    per-pair constants from which each sub-step's start data is computed, and its outputs per sub-step."""
+
+    tm_now: wp.array3d(dtype=wp.float64)  # (n, 3, K) padded states: the start, then after each sub-step
+    tmdot: wp.array3d(dtype=wp.float64)  # (n, 3, K) their rates, 1/s
+    h: wp.float64  # sub-step, s
+    scene_stiffness: wp.array(dtype=wp.float64)  # (n,) N/m per contact sphere
+    friction: wp.array(dtype=wp.float64)  # (n,) Coulomb coefficients
+    valid: wp.array2d(dtype=wp.int32)  # (n, S) 1 for real spheres
+    pair_mu: wp.array(dtype=wp.float64)  # (pairs,) friction coefficient of each candidate pair
+    tolerance: wp.float64
+    gravity_norm: wp.float64
+    pair_margin_m: wp.float64  # the broad phase's margin (gap below which spheres are candidates)
+    iterations: int
+    line_search_steps: int
+    sphere_x: wp.array3d(dtype=wp.vec3d)  # (sub, n, S) outputs per sub-step, see _final_forces
+    scene_force: wp.array3d(dtype=wp.vec3d)
+    scene_normal: wp.array3d(dtype=wp.vec3d)
+    pair_force: wp.array2d(dtype=wp.vec3d)  # (sub, pairs)
+    pair_normal: wp.array2d(dtype=wp.vec3d)
+    stats: wp.array3d(dtype=wp.int32)  # (sub, n_isl, NUM_STATS)
+
+
+@wp.func
+def sphere_velocity(tmdot: wp.array3d(dtype=wp.float64), b: wp.array3d(dtype=wp.float64), o: int, s: int, cols: int):
+    """Velocity (m/s) of sphere (o, s) at the rates ``tmdot``: ``Tmdot b``."""
+    v = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    for a in range(cols):
+        v = v + b[o, s, a] * wp.vec3d(tmdot[o, 0, a], tmdot[o, 1, a], tmdot[o, 2, a])
+    return v
+
+
+@wp.func
+def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: int):
+    """The start data of island ``isl``'s next sub-step from the current states ``ss.tm_now``, as
+    ``StepObjective`` (``contact_start``) and the solver (the pairs' frozen normal forces) compute it: start
+    and predicted states; per sphere its start position, scene normal, stiffness and frozen ``mu k depth``;
+    per pair its start positions, normal j -> i and frozen ``mu lam``. The pairs that can touch within the
+    sub-step are the island's live ones (``st.live_order``): as the solver's sub-step filter
+    (:meth:`data_gen.sim.contacts.BroadPhase.within_reach`), start gap below the margin plus 1.5 h times
+    the spheres' relative speed plus what gravity adds to both."""
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        cols = bd.columns[o]
+        for r in range(3):
+            for a in range(cols):
+                st.tm_start[o, r, a] = ss.tm_now[o, r, a]
+                st.tm_pred[o, r, a] = ss.tm_now[o, r, a] + ss.h * ss.tmdot[o, r, a]
+        k = ss.scene_stiffness[o]
+        for s in range(bd.radius.shape[1]):
+            x = sphere_position(ss.tm_now, bd.rest, bd.b, o, s, cols)
+            sdf, n = boxes_distance(x, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents,
+                                    sc.far_m)  # fmt: skip
+            if sc.has_points != 0:
+                sdf, n = points_distance(sc.grid, x, sc.static_points, sc.point_radius_m, sc.point_search_m, sdf, n)
+            valid = wp.float64(ss.valid[o, s])
+            depth = wp.max(bd.radius[o, s] - sdf, _ZERO) * valid
+            st.start_x[o, s] = x
+            st.start_normal[o, s] = n
+            st.stiffness[o, s] = k * valid
+            st.friction_scale[o, s] = ss.friction[o] * (k * depth)
+    live = int(0)
+    reach_g = wp.float64(2.0) * ss.gravity_norm * ss.h * ss.h + ss.pair_margin_m
+    for m in range(st.pair_start[isl], st.pair_start[isl + 1]):
+        p = st.pair_order[m]
+        oi = st.obj_i[p]
+        xi = sphere_position(ss.tm_now, bd.rest, bd.b, oi, st.sph_i[p], bd.columns[oi])
+        vi = sphere_velocity(ss.tmdot, bd.b, oi, st.sph_i[p], bd.columns[oi])
+        xj = st.frozen_x_j[p]
+        vj = wp.vec3d(_ZERO, _ZERO, _ZERO)
+        oj = st.obj_j[p]
+        if oj >= 0:
+            xj = sphere_position(ss.tm_now, bd.rest, bd.b, oj, st.sph_j[p], bd.columns[oj])
+            vj = sphere_velocity(ss.tmdot, bd.b, oj, st.sph_j[p], bd.columns[oj])
+        delta = xi - xj
+        dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
+        if dist - st.radius_sum[p] >= wp.float64(1.5) * ss.h * wp.length(vi - vj) + reach_g:
+            continue  # cannot touch within the sub-step
+        st.live_order[st.pair_start[isl] + live] = p
+        live = live + 1
+        lam = st.pair_stiffness[p] * wp.max(st.radius_sum[p] - dist, _ZERO)
+        st.x0_i[p] = xi
+        st.x0_j[p] = xj
+        st.normal0[p] = delta / dist
+        mu_lam = _ZERO
+        if lam > _ZERO:
+            mu_lam = ss.pair_mu[p] * lam
+        st.pair_friction_scale[p] = mu_lam
+    st.live_count[isl] = live
+
+
+@wp.kernel
+def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps, num_sub: int):
+    """Island ``isl`` through ``num_sub`` implicit Euler sub-steps of ``ss.h``: each starts from the previous
+    one's result (:func:`_substep_start`), is solved by :func:`_newton` (its own threshold and trust radius)
+    and leaves its contact forces in the outputs (:func:`_final_forces`) and its counters in ``ss.stats``;
+    ``ss.tm_now`` / ``ss.tmdot`` end at the last one's state and rate. A sub-step that needs ``minimise``
+    stops the island there (its status in ``ss.stats``)."""
+    isl = wp.tid()
+    kp = bd.flat_index.shape[1] // 3
+    for j in range(num_sub):
+        _substep_start(bd, sc, st, ss, isl)
+        thr, trust = _step_limits(bd, st, isl, ss.tolerance, ss.gravity_norm)
+        for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):  # q0 = the predicted states
+            o = bd.island_objects[slot]
+            for r in range(3):
+                for a in range(bd.columns[o]):
+                    wk.q[bd.flat_index[o, r * kp + a]] = st.tm_pred[o, r, a]
+        _scene_margins(bd, sc, st, isl)
+        _newton(bd, sc, st, wk, isl, thr, trust, ss.iterations, ss.line_search_steps)
+        for k in range(NUM_STATS):
+            ss.stats[j, isl, k] = wk.stats[isl, k]
+        if wk.stats[isl, STATUS] != SOLVED:
+            return
+        _final_forces(bd, sc, st, wk, isl, ss.sphere_x[j], ss.scene_force[j], ss.scene_normal[j], ss.pair_force[j],
+                      ss.pair_normal[j])  # fmt: skip
+        for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):  # wk.tm holds the result
+            o = bd.island_objects[slot]
+            for r in range(3):
+                for a in range(bd.columns[o]):
+                    ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / ss.h
+                    ss.tm_now[o, r, a] = wk.tm[o, r, a]
+
+
+@dataclass
+class SubstepResult:
+    """What :meth:`FusedNewton.solve_substeps` returns: the padded states and rates (n, 3, K) after the last
+    sub-step, the Newton iterations (sub, n_isl), the counters summed over sub-steps and islands, and per
+    sub-step the contact forces at its result (views of buffers the next call overwrites)."""
+
+    tm: torch.Tensor
+    tmdot: torch.Tensor
+    iterations: torch.Tensor
+    counters: dict[str, int]
+    forces: list[ContactForces]
 
 
 def _wp(t: torch.Tensor, dtype=None) -> wp.array:
@@ -746,10 +911,12 @@ class FusedNewton:
             "extreme_index": torch.sort((~model.sphere_extreme).to(i32), dim=1, stable=True).indices.to(i32),
             "island_mass": island_mass_kg, "island_radius": min_median_radius_m,
         }  # fmt: skip
+        substep_constants = {"friction": model.friction, "valid": model.sphere_valid.to(i32)}
         self._keep = {key: value.contiguous() for key, value in self._keep.items()}
         bd = Bodies()
         for key, value in self._keep.items():
             setattr(bd, key, _wp(value, wp.vec3d if key == "rest" else None))
+        self._keep.update({key: value.contiguous() for key, value in substep_constants.items()})
         bd.island_size = int(size)
         self.bodies = bd
         scene = contact.scene
@@ -779,6 +946,8 @@ class FusedNewton:
         self.margin = torch.zeros_like(model.sphere_radius_m)
         self.island_of = layout.island
         self.pair_start = torch.zeros(n_isl + 1, dtype=i32, device=model.mass_kg.device)
+        self.live_count = torch.zeros(n_isl, dtype=i32, device=model.mass_kg.device)
+        self._step_live_count = _wp(self.live_count)
         self.first = torch.zeros(n_isl * size, dtype=i32, device=model.mass_kg.device)
         # (n, 2) columns each object's rows hold in hess (the kernels keep it: hess is cleared only there)
         self.band = torch.zeros(n, 2, dtype=i32, device=model.mass_kg.device)
@@ -797,14 +966,23 @@ class FusedNewton:
         self.work = wk
         self._limits = [_wp(self.threshold), _wp(self.trust)]
         self._step = StepData()
+        self._step.live_count = self._step_live_count
         self._pair_capacity = -1
+        self._substeps: Substeps | None = None
 
     def _step_data(self, objective: StepObjective) -> StepData:
         """The step's data for the kernels: ``objective``'s states, gravity and h^2, and the contact data of
         its last ``prepare`` (pairs ordered by island)."""
-        c = self.contact
-        if objective.contact is not c:
+        if objective.contact is not self.contact:
             raise ValueError("the objective's contact buffers are not this FusedNewton's (another workspace)")
+        self.tm_pred.copy_(objective.tm_pred)
+        self.tm_start.copy_(objective.tm_n)
+        return self._bind_step(objective.gravity, objective.h2)
+
+    def _bind_step(self, gravity_m_s2: torch.Tensor, h2: float) -> StepData:
+        """:class:`StepData` over this workspace's buffers, with gravity, h^2 and the contact data of the last
+        ``prepare`` (pairs ordered by island); the states ``tm_pred`` / ``tm_start`` are the caller's."""
+        c = self.contact
         st = self._step
         if self._pair_capacity != c.pair_capacity:  # the contact object's pair buffers were (re)allocated
             c_ints, c_vec, c_scal = c.pair_arrays()
@@ -822,12 +1000,14 @@ class FusedNewton:
             self._pair_force_arrays = [_wp(self.pair_force, wp.vec3d), _wp(self.pair_normals, wp.vec3d)]
             self._identity_pairs = 0  # pair_order[:k] = 0..k-1 for this k (one-island solves)
             st.pair_start, st.pair_order = _wp(self.pair_start), _wp(self.pair_order)
-        self.tm_pred.copy_(objective.tm_pred)
-        self.tm_start.copy_(objective.tm_n)
-        g = objective.gravity.tolist()
+            self.live_order = torch.zeros_like(c_ints[0])
+            self._pair_order_wp, self._live_order_wp = st.pair_order, _wp(self.live_order)
+            self.pair_mu = torch.zeros(len(c_ints[0]), dtype=self.q.dtype, device=self.q.device)
+            self._substeps = None  # (re)bound to the new pair buffers on next use
+        g = gravity_m_s2.tolist()
         st.gravity = wp.vec3d(g[0], g[1], g[2])
-        self._gravity_norm = float(objective.gravity.norm())
-        st.h2 = wp.float64(objective.h2)
+        self._gravity_norm = float(gravity_m_s2.norm())
+        st.h2 = wp.float64(h2)
         st.smoothing_m = wp.float64(c.smoothing_m)
         p = int(c.num_pairs)
         st.num_pairs = p
@@ -836,11 +1016,14 @@ class FusedNewton:
                 self.pair_order[:p] = torch.arange(p, dtype=torch.int32)
                 self._identity_pairs = p
             self.pair_start[1] = p
+            self.live_count[0] = p
         else:
             island = self.island_of[self._obj_i[:p].long()]
             self.pair_order[:p] = torch.sort(island, stable=True).indices.to(torch.int32)
             self.pair_start[1:] = torch.cumsum(torch.bincount(island, minlength=self.shape[0]), 0)
+            self.live_count.copy_(self.pair_start[1:] - self.pair_start[:-1])
             self._identity_pairs = 0
+        st.live_order = self._pair_order_wp  # every pair is evaluated (sub-steps choose: solve_substeps)
         return st
 
     def evaluate(self, objective: StepObjective, q: torch.Tensor,
@@ -895,6 +1078,90 @@ class FusedNewton:
         }
         return NewtonResult(self.q.view(n_isl, size).clone(), out[:, ITERATIONS], out[:, CONVERGED].bool(), counters)
 
+    def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float, num_sub: int,
+                       gravity_m_s2: torch.Tensor, settings: NewtonSettings, scene_stiffness_n_m: torch.Tensor,
+                       smoothing_m: float, pairs: PairSet | None, pair_mu: torch.Tensor,
+                       pair_margin_m: float) -> SubstepResult | None:  # fmt: skip
+        """``num_sub`` implicit Euler sub-steps of ``h_s`` seconds of every island in one launch
+        (:func:`substeps_kernel`), from padded states ``tm`` and rates ``tmdot`` (n, 3, K). Each sub-step's
+        start data is computed as :class:`StepObjective` computes it (scene stiffness ``scene_stiffness_n_m``
+        (n,) N/m per sphere, the objects' friction, friction smoothing ``smoothing_m`` m), the candidate
+        ``pairs`` (their frozen normal forces from each sub-step's start, friction coefficients ``pair_mu``
+        (P,)) serve every sub-step (each evaluates those that can touch within it, ``pair_margin_m`` m being the
+        broad phase's margin), and each is solved as :meth:`solve` solves one. None when a sub-step of
+        some island needs ``minimise`` (nothing is kept: the caller solves the sub-steps one by one)."""
+        n_isl, _ = self.shape
+        c = self.contact
+        c.prepare(c.stiffness, c.friction_scale, c.start_x, c.start_normals, smoothing_m, h_s * h_s,
+                  pairs if pairs is not None and pairs.num_pairs else None)  # fmt: skip
+        st = self._bind_step(gravity_m_s2, h_s * h_s)
+        st.live_order = self._live_order_wp
+        ss = self._substep_buffers(num_sub)
+        ss.pair_margin_m = wp.float64(pair_margin_m)
+        p = int(st.num_pairs)
+        self.pair_mu[:p].copy_(pair_mu[:p])
+        self.tm_now.copy_(tm)
+        self.tmdot.copy_(tmdot)
+        self.scene_k.copy_(scene_stiffness_n_m)
+        self.sub_stats.zero_()
+        ss.h = wp.float64(h_s)
+        ss.tolerance = wp.float64(settings.tolerance)
+        ss.gravity_norm = wp.float64(self._gravity_norm)
+        ss.iterations, ss.line_search_steps = int(settings.iterations), int(settings.line_search_steps)
+        wp.launch(substeps_kernel, dim=n_isl, device=self.device,
+                  inputs=[self.bodies, self.scene, st, self.work, ss, int(num_sub)])  # fmt: skip
+        out = self.sub_stats[:num_sub].to(torch.int64)  # (sub, n_isl, NUM_STATS)
+        if bool((out[:, :, STATUS] != SOLVED).any()):
+            return None
+        totals = out.sum((0, 1)).tolist()
+        counters = {
+            "evaluations": totals[EVALUATIONS],
+            "evaluations_with_derivatives": totals[EVALUATIONS_WITH_DERIVATIVES],
+            "strict_projections": 0,
+            "line_search_failures": totals[LINE_SEARCH_FAILURES],
+            "line_search_extended": totals[LINE_SEARCH_EXTENDED],
+            "trust_limited_steps": totals[TRUST_LIMITED],
+            "unconverged_solves": num_sub * n_isl - totals[CONVERGED],
+        }
+        from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
+
+        forces = [
+            ContactForces(self.sub_scene_force[j], self.sub_scene_normal[j], self.sub_sphere_x[j],
+                          self.sub_pair_force[j, :p], self.sub_pair_normal[j, :p])  # fmt: skip
+            for j in range(num_sub)
+        ]
+        return SubstepResult(self.tm_now.clone(), self.tmdot.clone(), out[:, :, ITERATIONS], counters, forces)
+
+    def _substep_buffers(self, num_sub: int) -> Substeps:
+        """The :class:`Substeps` arguments over buffers for at least ``num_sub`` sub-steps (kept, grown)."""
+        have = 0 if self._substeps is None else self.sub_stats.shape[0]
+        if num_sub <= have:
+            return self._substeps
+        like = dict(dtype=self.q.dtype, device=self.q.device)
+        n, _, k = self.tm.shape
+        s = self.sphere_x.shape[1]
+        capacity = len(self.pair_mu)
+        count = max(num_sub, 2 * have)
+        ss = Substeps()
+        if self._substeps is None or not hasattr(self, "tm_now"):
+            self.tm_now, self.tmdot = torch.zeros(n, 3, k, **like), torch.zeros(n, 3, k, **like)
+            self.scene_k = torch.zeros(n, **like)
+        self.sub_sphere_x = torch.zeros(count, n, s, 3, **like)
+        self.sub_scene_force, self.sub_scene_normal = torch.zeros_like(self.sub_sphere_x), torch.zeros_like(self.sub_sphere_x)
+        self.sub_pair_force = torch.zeros(count, capacity, 3, **like)
+        self.sub_pair_normal = torch.zeros_like(self.sub_pair_force)
+        self.sub_stats = torch.zeros(count, self.shape[0], NUM_STATS, dtype=torch.int32, device=self.q.device)
+        ss.tm_now, ss.tmdot = _wp(self.tm_now), _wp(self.tmdot)
+        ss.scene_stiffness, ss.friction = _wp(self.scene_k), _wp(self._keep["friction"])
+        ss.valid, ss.pair_mu = _wp(self._keep["valid"]), _wp(self.pair_mu)
+        ss.sphere_x, ss.scene_force, ss.scene_normal = (
+            _wp(t, wp.vec3d) for t in (self.sub_sphere_x, self.sub_scene_force, self.sub_scene_normal)
+        )
+        ss.pair_force, ss.pair_normal = _wp(self.sub_pair_force, wp.vec3d), _wp(self.sub_pair_normal, wp.vec3d)
+        ss.stats = _wp(self.sub_stats)
+        self._substeps = ss
+        return ss
+
     def forces(self) -> ContactForces:
         """The contact forces of the last :meth:`solve`'s result (it must have returned a result): what
         :meth:`StepObjective.forces` computes at that state, from one launch over the islands."""
@@ -909,4 +1176,4 @@ class FusedNewton:
                              self.pair_force[:p].clone(), self.pair_normals[:p].clone())  # fmt: skip
 
 
-__all__ = ["FusedNewton", "evaluate_islands_kernel", "final_forces_kernel", "newton_islands_kernel"]
+__all__ = ["FusedNewton", "evaluate_islands_kernel", "final_forces_kernel", "newton_islands_kernel", "substeps_kernel"]

@@ -350,11 +350,18 @@ class ImplicitEulerSolver:
             # objects only (FusedNewton's) apart from the others
             rigid = self.fused_newton and all(self._one_handle[k] for k in island)
             by_substeps.setdefault((num_sub, rigid), []).append(island)
-        for (num_sub, _), group in sorted(by_substeps.items()):
+        for (num_sub, rigid), group in sorted(by_substeps.items()):
             stats.substeps = max(stats.substeps, num_sub)
             self.h = self.dt / num_sub
             members = [k for island in group for k in island]
             member_pairs = self._member_pairs(members, contacts.pairs)
+            if rigid:  # every sub-step in one launch; None when one of them needs minimise
+                t0 = time.perf_counter()
+                iterations = self._solve_group_substeps(group, member_pairs, positions, num_sub, stats, supported)
+                self.timings["newton"] += time.perf_counter() - t0
+                if iterations is not None:
+                    stats.newton_iterations += iterations
+                    continue
             for _ in range(num_sub):
                 t0 = time.perf_counter()
                 pair_set = self._island_pairs(*member_pairs, positions)
@@ -546,12 +553,14 @@ class ImplicitEulerSolver:
         swap = ~inside[touching, 0]  # orient every pair so that side i is an island member
         return np.where(swap, sel[:, 1], sel[:, 0]), np.where(swap, sel[:, 0], sel[:, 1])
 
-    def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor]) -> _PairSet:
+    def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor],
+                      within_substep: bool = True) -> _PairSet:  # fmt: skip
         """The pair set of a (sub)step from the members' candidate pairs (:meth:`_member_pairs`) and the
-        current sphere positions (m)."""
+        current sphere positions (m); in a sub-step, only the pairs that can touch within it unless not
+        ``within_substep`` (all the step's candidates: they serve every sub-step)."""
         bp = self.broad_phase
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
-        if len(gi) and self.h < self.dt:
+        if len(gi) and self.h < self.dt and within_substep:
             # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
             near = bp.within_reach(gi, gj, x_all.numpy(), self._sphere_velocity_list(), self.h)
             gi, gj = gi[near], gj[near]
@@ -694,6 +703,52 @@ class ImplicitEulerSolver:
         self._record_group_forces(objects, forces, ps, objective.pairs, model, h, stats, supported)
         return int(result.iterations.sum())
 
+    def _solve_group_substeps(self, islands: list[list[int]], member_pairs: tuple[np.ndarray, np.ndarray],
+                              positions: list[torch.Tensor], num_sub: int, stats: StepStats,
+                              supported: np.ndarray) -> int | None:  # fmt: skip
+        """All ``num_sub`` sub-steps (of ``self.h``) of a group of one-handle islands in one fused launch
+        (:meth:`FusedNewton.solve_substeps`): the step's candidate pairs serve every sub-step, each sub-step's
+        contact forces are recorded as :meth:`_solve_group` records them, and ``positions`` end at the new
+        states. Returns the Newton iterations, or None (nothing changed) when the group has no fused
+        workspace or a sub-step needs ``minimise``: the caller then solves the sub-steps one by one."""
+        setup = self._group_setup(islands)
+        workspace = setup.objective_workspace(self.scene_distance)
+        fused = workspace.fused
+        if fused is None:
+            return None
+        objects, slot_of, model = setup.objects, setup.slot_of, setup.model
+        h = self.h
+        ps = self._island_pairs(*member_pairs, positions, within_substep=False)
+        pairs = self._group_pairs(objects, slot_of, ps, model)
+        tm_n, tmdot = self._padded_states(setup)
+        settings = NewtonSettings(
+            self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps
+        )
+        result = fused.solve_substeps(
+            tm_n, tmdot, h, num_sub, self.gravity, settings,
+            self.preset.contact_stiffness_factor * model.mass_kg / (h * h), self.preset.friction_smoothing_m_s * h,
+            pairs, ps.mu, self.broad_phase.margin_m,
+        )  # fmt: skip
+        if result is None:
+            self.counters["fused_handed_back"] += 1
+            return None
+        for key, value in result.counters.items():
+            self.counters[key] += value
+        self.counters["island_solves"] += num_sub * len(islands)
+        self.counters["island_object_solves"] += num_sub * len(objects)
+        self.counters["fused_island_solves"] += num_sub * len(islands)
+        q = result.tm.reshape(-1)[setup.padded]
+        qdot = result.tmdot.reshape(-1)[setup.padded]
+        if not bool(torch.isfinite(q).all()):
+            self._check_finite(objects, list(q.split(setup.sizes)), "reduced state q")
+        for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per group
+            self.state.q[o] = q_o
+            self.state.qdot[o] = qdot_o
+            positions[o] = self.bodies[o].contact_positions(q_o)
+        for forces in result.forces:  # each sub-step's forces, in order (impulses, peaks, sleeping partners)
+            self._record_group_forces(objects, forces, ps, pairs, model, h, stats, supported)
+        return int(result.iterations.sum())
+
     def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, stats: StepStats,
                                supported: np.ndarray) -> None:
         """Contact forces of the current state without stepping (the initial frame): the step that led
@@ -753,10 +808,16 @@ class ImplicitEulerSolver:
                 b.static_summary = None
         if pairs.num_pairs == 0:
             return
-        xi, xj = pairs.positions(x)
+        rows = torch.nonzero((forces.pair_force_i_n != 0).any(1))[:, 0]  # the pairs in contact (in order)
+        if not len(rows):
+            return
+        obj_j, frozen = pairs.obj_j[rows], pairs.obj_j[rows] < 0
+        xi = x[pairs.obj_i[rows], pairs.sph_i[rows]]
+        xj = torch.where(frozen[:, None], pairs.frozen_x_j[rows], x[obj_j.clamp(min=0), pairs.sph_j[rows]])
+        r = rows.numpy()
         self._accumulate_pair_forces(
-            ps.obj_i, ps.loc_i, ps.obj_j, ps.loc_j, xi, xj, forces.pair_force_i_n, forces.pair_normals, stats,
-            supported,
+            ps.obj_i[r], ps.loc_i[r], ps.obj_j[r], ps.loc_j[r], xi, xj, forces.pair_force_i_n[rows],
+            forces.pair_normals[rows], stats, supported,
         )  # fmt: skip
 
     def _record_sleeping_contacts(

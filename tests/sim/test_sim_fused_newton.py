@@ -227,10 +227,15 @@ def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, 
 
     calls = {"fused": 0, "minimise": 0}
     fused_solve, batched = fused_module.FusedNewton.solve, solver_module.minimise
+    fused_substeps = fused_module.FusedNewton.solve_substeps
 
     def count_fused(self, *args, **kwargs):
         calls["fused"] += 1
         return fused_solve(self, *args, **kwargs)
+
+    def count_fused_substeps(self, *args, **kwargs):
+        calls["fused"] += 1
+        return fused_substeps(self, *args, **kwargs)
 
     def count_minimise(objective, *args, **kwargs):
         calls["minimise"] += 1
@@ -238,6 +243,7 @@ def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, 
         return batched(objective, *args, **kwargs)
 
     monkeypatch.setattr(fused_module.FusedNewton, "solve", count_fused)
+    monkeypatch.setattr(fused_module.FusedNewton, "solve_substeps", count_fused_substeps)
     monkeypatch.setattr(solver_module, "minimise", count_minimise)
     half = (0.07, 0.07, 0.05)
 
@@ -255,6 +261,7 @@ def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, 
     with_kernel = run(True)
     assert calls["fused"] > 0 and calls["minimise"] > 0
     monkeypatch.setattr(fused_module.FusedNewton, "solve", fused_solve)
+    monkeypatch.setattr(fused_module.FusedNewton, "solve_substeps", fused_substeps)
     monkeypatch.setattr(solver_module, "minimise", batched)
     without = run(False)
     assert np.abs(with_kernel - without).max() < 2e-4
@@ -275,3 +282,48 @@ def test_fused_forces_equal_the_step_objective_forces():
             torch.testing.assert_close(a, b, rtol=0.0, atol=1e-12 * max(1.0, float(b.abs().max())))
         checked += int(ref.pair_force_i_n.abs().sum() > 0) + int(ref.scene_force_n.abs().sum() > 0)
     assert checked >= 10  # forces were active, not only zeros compared
+
+
+@pytest.mark.parametrize("throw", [False, True], ids=["dropped", "thrown"])
+def test_one_fused_substep_computes_the_start_data_of_the_step_objective(throw):
+    """``solve_substeps`` computes each sub-step's start data in the kernel (scene stiffness, frozen scene and
+    pair friction, start positions and normals, predicted states, threshold and trust radius); one sub-step
+    from a recorded start lands where ``solve`` lands on the ``StepObjective`` built for it (same iterations,
+    states equal far below the tolerance) with the same contact forces, every pair evaluated."""
+    for objective, q0, scale, trust, settings in _captured_solves(throw=throw):
+        o = objective
+        if not bool((o.model.num_handles == 1).all()):
+            continue
+        fused = FusedNewton(o.model, o.layout, o.contact, o.island_mass_kg, o.min_median_radius_m)
+        ref = fused.solve(o, q0, scale, trust, settings)
+        ref_tm = o.layout.to_objects(ref.q)
+        ref_forces = fused.forces()
+        ref_forces = [t.clone() for t in (ref_forces.scene_force_n, ref_forces.scene_normals,
+                                          ref_forces.pair_force_i_n)]  # fmt: skip
+        out = fused.solve_substeps(
+            o.tm_n, (o.tm_pred - o.tm_n) / o.h, o.h, 1, o.gravity, settings, o.scene_stiffness_n_m, o.smoothing_m,
+            o.pairs, o.pairs.friction, 1e9,  # a huge margin: every pair is live, as in the objective
+        )  # fmt: skip
+        assert out is not None
+        assert torch.equal(out.iterations[0], ref.iterations)
+        gap = o.mass_norm(o.layout.to_islands(out.tm) - ref.q)
+        assert bool((gap <= 1e-3 * settings.tolerance * scale).all()), (gap / (settings.tolerance * scale)).tolist()
+        torch.testing.assert_close(out.tmdot, (out.tm - o.tm_n) / o.h, rtol=0.0, atol=1e-12)
+        got = out.forces[0]
+        for a, b in zip((got.scene_force_n, got.scene_normals, got.pair_force_i_n), ref_forces):
+            torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-6 * float(b.abs().max()) + 1e-12)
+        torch.testing.assert_close(ref_tm, out.tm, rtol=0.0, atol=1e-9)
+
+
+def test_fused_substeps_hand_back_a_non_finite_state_and_keep_nothing():
+    objective, q0, scale, trust, settings = _captured_solves(max_solves=1)[0]
+    o = objective
+    fused = FusedNewton(o.model, o.layout, o.contact, o.island_mass_kg, o.min_median_radius_m)
+    rates = (o.tm_pred - o.tm_n) / o.h
+    bad = o.tm_n.clone()
+    bad[0, 0, 0] = float("nan")
+    args = (o.h, 3, o.gravity, settings, o.scene_stiffness_n_m, o.smoothing_m, o.pairs, o.pairs.friction, 0.01)
+    assert fused.solve_substeps(bad, rates, *args) is None
+    good = fused.solve_substeps(o.tm_n, rates, *args)
+    assert good is not None and good.iterations.shape == (3, o.layout.num_islands)
+    assert bool(torch.isfinite(good.tm).all())
