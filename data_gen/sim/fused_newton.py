@@ -874,6 +874,12 @@ class SubstepResult:
     iterations: torch.Tensor
     counters: dict[str, int]
     forces: list[ContactForces]
+    # the same forces stacked over the sub-steps: (J, n, S, 3) and (J, P, 3)
+    scene_force_n: torch.Tensor
+    scene_normals: torch.Tensor
+    sphere_positions_m: torch.Tensor
+    pair_force_i_n: torch.Tensor
+    pair_normals: torch.Tensor
 
 
 def _wp(t: torch.Tensor, dtype=None) -> wp.array:
@@ -1130,7 +1136,11 @@ class FusedNewton:
                           self.sub_pair_force[j, :p], self.sub_pair_normal[j, :p])  # fmt: skip
             for j in range(num_sub)
         ]
-        return SubstepResult(self.tm_now.clone(), self.tmdot.clone(), out[:, :, ITERATIONS], counters, forces)
+        return SubstepResult(
+            self.tm_now.clone(), self.tmdot.clone(), out[:, :, ITERATIONS], counters, forces,
+            self.sub_scene_force[:num_sub], self.sub_scene_normal[:num_sub], self.sub_sphere_x[:num_sub],
+            self.sub_pair_force[:num_sub, :p], self.sub_pair_normal[:num_sub, :p],
+        )  # fmt: skip
 
     def _substep_buffers(self, num_sub: int) -> Substeps:
         """The :class:`Substeps` arguments over buffers for at least ``num_sub`` sub-steps (kept, grown)."""

@@ -65,6 +65,7 @@ from data_gen.sim.presets import QualityPreset
 from data_gen.sim.reduced import DTYPE, ReducedObject
 from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
+from data_gen.sim.fused_newton import SubstepResult
 from data_gen.sim.step_objective import ContactForces, SolveWorkspace, StepObjective
 
 NO_PARTNER = -1  # contact partner id of a point without contact (0 is the static scene)
@@ -745,9 +746,71 @@ class ImplicitEulerSolver:
             self.state.q[o] = q_o
             self.state.qdot[o] = qdot_o
             positions[o] = self.bodies[o].contact_positions(q_o)
-        for forces in result.forces:  # each sub-step's forces, in order (impulses, peaks, sleeping partners)
-            self._record_group_forces(objects, forces, ps, pairs, model, h, stats, supported)
+        if self._record_spheres:  # each sub-step's forces, in order (impulses, peaks, sleeping partners)
+            for forces in result.forces:
+                self._record_group_forces(objects, forces, ps, pairs, model, h, stats, supported)
+        else:
+            self._record_substep_statistics(objects, result, ps, pairs, model, h, stats, supported)
         return int(result.iterations.sum())
+
+    def _record_substep_statistics(self, objects: list[int], result: SubstepResult, ps: _PairSet, pairs: PairSet,
+                                   model: Model, h: float, stats: StepStats, supported: np.ndarray) -> None:  # fmt: skip
+        """What :meth:`_record_group_forces` records for each sub-step of ``result`` in a step whose per-sphere
+        records nobody reads, with the arithmetic batched over the sub-steps: the step statistics (per
+        sub-step and object pair, in the same order), support, and each object's scene forces and summary of
+        the last sub-step (kept if it falls asleep)."""
+        valid = model.sphere_valid[None, :, :, None]
+        force = result.scene_force_n * valid  # (J, n, S, 3)
+        mag = force.norm(dim=3)
+        total = force.sum(2)
+        weight = mag.sum(2).clamp(min=1e-300)
+        pos = (mag[..., None] * result.sphere_positions_m).sum(2) / weight[..., None]
+        nrm = (mag[..., None] * result.scene_normals).sum(2)
+        nrm = nrm / nrm.norm(dim=2, keepdim=True).clamp(min=1e-300)
+        touching = (mag > 0).any(2).numpy()  # (J, n)
+        total_np, pos_np, nrm_np = total.numpy(), pos.numpy(), nrm.numpy()
+        ids = [self.bodies[o].object_id for o in objects]
+        # pairs in contact, sub-step by sub-step: their object pairs' totals (as _accumulate_pair_forces)
+        n = len(self.bodies)
+        pair_keys, obj_a, obj_c, sums = (np.zeros(0, dtype=np.int64),) * 3 + (np.zeros((0, 10)),)
+        if pairs.num_pairs:
+            f_all = result.pair_force_i_n  # (J, P, 3)
+            jj, pp = (t.numpy() for t in torch.nonzero((f_all != 0).any(2), as_tuple=True))
+            fa_t = f_all[jj, pp]
+            m = fa_t.norm(dim=1).numpy()
+            keep = m > 0
+            jj, pp, m, fa = jj[keep], pp[keep], m[keep], fa_t.numpy()[keep]
+            if len(pp):
+                x = result.sphere_positions_m
+                obj_i, sph_i, obj_j = pairs.obj_i.numpy()[pp], pairs.sph_i.numpy()[pp], pairs.obj_j.numpy()[pp]
+                xi = x[jj, obj_i, sph_i].numpy()
+                xj = np.where((obj_j < 0)[:, None], pairs.frozen_x_j.numpy()[pp],
+                              x[jj, np.maximum(obj_j, 0), pairs.sph_j.numpy()[pp]].numpy())  # fmt: skip
+                oi, oj = ps.obj_i[pp], ps.obj_j[pp]
+                pair_keys, group = np.unique((jj * n + oi) * n + oj, return_inverse=True)  # by sub-step, (a, c)
+                normal = result.pair_normals[jj, pp].numpy()
+                weighted = np.concatenate([fa, m[:, None] * 0.5 * (xi + xj), m[:, None] * normal, m[:, None]], axis=1)
+                sums = np.zeros((len(pair_keys), 10))
+                np.add.at(sums, group.reshape(-1), weighted)
+                obj_a, obj_c = (pair_keys // n) % n, pair_keys % n
+                asleep = self.state.asleep
+                supported[obj_a] = True
+                supported[obj_c[asleep[obj_c]]] = True
+        key_step = pair_keys // (n * n)
+        for j in range(touching.shape[0]):  # sub-step by sub-step: scene contacts, then object pairs
+            for slot in np.flatnonzero(touching[j]):
+                supported[objects[slot]] = True
+                stats.add_pair_force((ids[slot], 0), total_np[j, slot], pos_np[j, slot], nrm_np[j, slot], h)
+            lo, hi = np.searchsorted(key_step, [j, j + 1])
+            if hi > lo:
+                self._add_object_pair_statistics(obj_a[lo:hi], obj_c[lo:hi], sums[lo:hi], stats)
+        last = touching.shape[0] - 1
+        for slot, o in enumerate(objects):  # what an object that falls asleep now keeps
+            b = self.bodies[o]
+            b.static_force_n = force[last, slot, : b.contact.num_points]
+            b.static_summary = (
+                (total_np[last, slot], pos_np[last, slot], nrm_np[last, slot]) if touching[last, slot] else None
+            )
 
     def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, stats: StepStats,
                                supported: np.ndarray) -> None:
@@ -903,9 +966,16 @@ class ImplicitEulerSolver:
         )
         sums = np.zeros((len(keys), 10))
         np.add.at(sums, group, weighted)
+        self._add_object_pair_statistics(obj_a, obj_c, sums, stats)
+
+    def _add_object_pair_statistics(self, obj_a: np.ndarray, obj_c: np.ndarray, sums: np.ndarray,
+                                    stats: StepStats) -> None:  # fmt: skip
+        """Per object pair (a, c) (in order): ``sums`` (10,) = total force on a (N), force-weighted sum of
+        contact positions (N m), of normals c -> a (N), and the force magnitudes (N); added to the step
+        statistics keyed (smaller id, larger id), force and normal from the smaller id's side."""
         total, pos, nrm = sums[:, 0:3], sums[:, 3:6] / sums[:, 9:10], sums[:, 6:9]
         id_a, id_c = self._object_id[obj_a], self._object_id[obj_c]
-        for g in range(len(keys)):  # loop over object pairs: events are keyed (smaller id, larger id)
+        for g in range(len(obj_a)):  # loop over object pairs: events are keyed (smaller id, larger id)
             total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
             key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
             stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
