@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from data_gen.sim.contact import pair_depth
 from data_gen.sim.fused_newton import FusedNewton
 from data_gen.sim.newton import NewtonSettings, minimise
 from data_gen.sim.presets import load_preset
@@ -327,3 +328,44 @@ def test_fused_substeps_hand_back_a_non_finite_state_and_keep_nothing():
     good = fused.solve_substeps(o.tm_n, rates, *args)
     assert good is not None and good.iterations.shape == (3, o.layout.num_islands)
     assert bool(torch.isfinite(good.tm).all())
+
+
+@pytest.mark.parametrize("scene", SCENES, ids=IDS)
+def test_fused_substep_start_data_equals_the_step_objectives_on_every_scene(scene):
+    """The start data ``solve_substeps`` computes in the kernel for a sub-step (per sphere: stiffness, frozen
+    ``mu k depth``, start position and scene normal; per pair: start positions, normal and frozen ``mu lam``)
+    equal what ``StepObjective`` and the solver compute, on the ground, a static box and a point cloud, with
+    spheres pressed 2 cm into the scene (friction frozen at the start)."""
+    model, layout, distance, _, _, pairs, tm = _setup(scene, 3, (1, 1, 1))
+    tm = tm.clone()
+    tm[:, 2, 3] -= 0.02
+    gen = torch.Generator().manual_seed(4)
+    tmdot = 0.05 * torch.randn(tm.shape, generator=gen, dtype=D)
+    objective = StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs)
+    c = objective.contact
+    assert float(c.friction_scale.max()) > 0.0  # spheres in the scene carry a frozen friction force
+    expected = [t.clone() for t in (c.stiffness, c.friction_scale, c.start_x, c.start_normals)]
+    # the pairs as the solver starts a (sub)step: positions at its start, frozen normal force k max(depth, 0)
+    p = pairs.num_pairs
+    x = model.sphere_positions(tm)
+    xi = x[pairs.obj_i, pairs.sph_i]
+    xj = torch.where((pairs.obj_j >= 0)[:, None], x[pairs.obj_j.clamp(min=0), pairs.sph_j], pairs.frozen_x_j)
+    depth, normal = pair_depth(xi, xj, pairs.radius_sum_m)
+    lam = pairs.stiffness_n_m * depth.clamp(min=0.0)
+    mu = torch.linspace(0.3, 0.7, p, dtype=D)
+    assert bool((lam > 0).any()) and bool((lam == 0).any())
+    expected_pairs = [normal, xi, xj, mu * lam]
+    fused = FusedNewton(model, layout, c, objective.island_mass_kg, objective.min_median_radius_m)
+    settings = NewtonSettings(40, 3e-4, 10)
+    out = fused.solve_substeps(tm, tmdot, H_S, 1, GRAVITY, settings, objective.scene_stiffness_n_m, 0.01 * H_S,
+                               pairs, mu, 1e9)  # fmt: skip
+    ints, vec, scal = c.pair_arrays()
+    assert out is not None
+    valid = model.sphere_valid
+    for got, want in zip((c.stiffness, c.friction_scale), expected[:2]):
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-9 * float(want.abs().max()))
+    torch.testing.assert_close(c.start_x[valid], expected[2][valid], rtol=0.0, atol=1e-15)
+    touching = valid & (expected[0] > 0)
+    torch.testing.assert_close(c.start_normals[touching], expected[3][touching], rtol=0.0, atol=1e-12)
+    for got, want in zip((vec[1][:p], vec[2][:p], vec[3][:p], scal[2][:p]), expected_pairs):
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12 * (1.0 + float(want.abs().max())))
