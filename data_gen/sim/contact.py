@@ -208,11 +208,13 @@ class PairFinder:
         query_radius = 2.0 * float(radii_m.max()) + margin_m + 2.0 * float(extra.max())
         objects = self._object_table(object_ids, radii_m)
         x = np.ascontiguousarray(points_m, dtype=np.float64)
-        pts = wp.array(x, dtype=wp.vec3d, device=self.device)
-        self.grid.build(pts, query_radius, groups=objects.dense)  # cells as wide as the largest query
-        lo = wp.array(objects.per_object(x, np.minimum), dtype=wp.vec3d, device=self.device)  # bounding boxes
-        hi = wp.array(objects.per_object(x, np.maximum), dtype=wp.vec3d, device=self.device)
+        # the host arrays below stay alive until the launch has read them (on CPU they are not copied)
+        lo_np, hi_np = objects.per_object(x, np.minimum), objects.per_object(x, np.maximum)  # bounding boxes
         reach = objects.per_object(objects.radii_m + extra, np.maximum)  # (m,) largest radius + margin, m
+        pts = self._device_array(x, wp.vec3d)
+        self.grid.build(pts, query_radius, groups=objects.dense)  # cells as wide as the largest query
+        lo, hi = self._device_array(lo_np, wp.vec3d), self._device_array(hi_np, wp.vec3d)
+        extra_wp, reach_wp = self._device_array(extra, wp.float64), self._device_array(reach, wp.float64)
         while True:
             self._count.zero_()
             wp.launch(
@@ -223,10 +225,10 @@ class PairFinder:
                     pts,
                     objects.dense,
                     objects.radii,
-                    wp.array(extra, dtype=wp.float64, device=self.device),
+                    extra_wp,
                     lo,
                     hi,
-                    wp.array(reach, dtype=wp.float64, device=self.device),
+                    reach_wp,
                     int(objects.ordered),
                     wp.float64(margin_m),
                     self.capacity,
@@ -240,7 +242,17 @@ class PairFinder:
             self.capacity = int(2 ** np.ceil(np.log2(found)))
             self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=self.device)
         out = self._pairs.numpy()[:found].astype(np.int64)
-        return out[np.lexsort((out[:, 1], out[:, 0]))]
+        key = np.sort(out[:, 0] * n + out[:, 1])  # lexicographic (i, j) order: i < j < n
+        return np.stack([key // n, key % n], axis=1)
+
+    def _device_array(self, values: np.ndarray, dtype) -> wp.array:
+        """``values`` (float64, C-contiguous) as a warp array of ``dtype`` on the finder's device: on CPU a view
+        of the numpy buffer (the caller keeps it alive while kernels read it), elsewhere a copy."""
+        values = np.ascontiguousarray(values, dtype=np.float64)
+        if self.device != "cpu":
+            return wp.array(values, dtype=dtype, device=self.device)
+        length = values.shape[0]
+        return wp.array(ptr=values.ctypes.data, dtype=dtype, shape=(length,), device="cpu", copy=False)
 
 
 @dataclass
