@@ -77,6 +77,9 @@ SCENE_REACH_RADII = 2.0
 # The preset's ``max_contact_substeps`` is a cost cap; a point so fast that the cap would let it jump
 # past its reach gets up to this many sub-steps instead (counted as ``substep_cap_raised``).
 HARD_SUBSTEP_LIMIT = 64
+# At most this many sub-steps of a group go through one fused launch (its per-sub-step force buffers are kept
+# with the group's workspace); a step that needs more solves its sub-steps one by one.
+FUSED_MAX_SUBSTEPS = 16
 _ARMIJO_C = 1e-4
 # After the preset's Armijo halvings fail, keep halving up to this many more times for any decrease
 # (a failed search leaves the island at its last accepted iterate).
@@ -711,7 +714,10 @@ class ImplicitEulerSolver:
         (:meth:`FusedNewton.solve_substeps`): the step's candidate pairs serve every sub-step, each sub-step's
         contact forces are recorded as :meth:`_solve_group` records them, and ``positions`` end at the new
         states. Returns the Newton iterations, or None (nothing changed) when the group has no fused
-        workspace or a sub-step needs ``minimise``: the caller then solves the sub-steps one by one."""
+        workspace, needs more than ``FUSED_MAX_SUBSTEPS`` sub-steps or one of them needs ``minimise``: the
+        caller then solves the sub-steps one by one."""
+        if num_sub > FUSED_MAX_SUBSTEPS:
+            return None
         setup = self._group_setup(islands)
         workspace = setup.objective_workspace(self.scene_distance)
         fused = workspace.fused

@@ -369,3 +369,37 @@ def test_fused_substep_start_data_equals_the_step_objectives_on_every_scene(scen
     torch.testing.assert_close(c.start_normals[touching], expected[3][touching], rtol=0.0, atol=1e-12)
     for got, want in zip((vec[1][:p], vec[2][:p], vec[3][:p], scal[2][:p]), expected_pairs):
         torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12 * (1.0 + float(want.abs().max())))
+
+
+def test_steps_beyond_the_fused_substep_cap_are_solved_one_sub_step_at_a_time(monkeypatch):
+    """With the cap on sub-steps per fused launch at 1, every sub-stepped group goes through the per-sub-step
+    path (still fused, one launch per sub-step) and the thrown stack ends where the batched path ends."""
+    import data_gen.sim.fused_newton as fused_module
+    import data_gen.sim.solver as solver_module
+
+    calls = {"substeps": 0}
+    original = fused_module.FusedNewton.solve_substeps
+
+    def counted(self, tm, tmdot, h_s, num_sub, *args, **kwargs):
+        calls["substeps"] += 1
+        assert num_sub <= 1
+        return original(self, tm, tmdot, h_s, num_sub, *args, **kwargs)
+
+    per_substep = solver_module.ImplicitEulerSolver._solve_group
+
+    def counted_per_substep(self, *args, **kwargs):
+        calls["per_substep"] = calls.get("per_substep", 0) + 1
+        return per_substep(self, *args, **kwargs)
+
+    monkeypatch.setattr(fused_module.FusedNewton, "solve_substeps", counted)
+    monkeypatch.setattr(solver_module.ImplicitEulerSolver, "_solve_group", counted_per_substep)
+    monkeypatch.setattr(solver_module, "FUSED_MAX_SUBSTEPS", 1)
+    capped = _stack(True, throw=True)
+    assert calls["substeps"] > 0  # single sub-step groups still take it
+    assert calls.get("per_substep", 0) > 0  # the sub-stepped ones went one sub-step at a time
+    assert capped.info.counters["fused_island_solves"] == capped.info.counters["island_solves"]
+    monkeypatch.setattr(fused_module.FusedNewton, "solve_substeps", original)
+    batched = _stack(False, throw=True)
+    com_capped = np.stack([t.com_m for t in capped.objects])
+    com_batched = np.stack([t.com_m for t in batched.objects])
+    assert np.abs(com_capped - com_batched).max() < 2e-4
