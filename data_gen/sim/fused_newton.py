@@ -173,6 +173,15 @@ def _load_state(bd: Bodies, q: wp.array(dtype=wp.float64), tm: wp.array3d(dtype=
 
 
 @wp.func
+def _scene_distance(sc: SceneArgs, x: wp.vec3d):
+    """Signed distance (m) from ``x`` to the static scene (ground, boxes, point cloud) and the scene normal."""
+    sdf, n = boxes_distance(x, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m)
+    if sc.has_points != 0:
+        sdf, n = points_distance(sc.grid, x, sc.static_points, sc.point_radius_m, sc.point_search_m, sdf, n)
+    return sdf, n
+
+
+@wp.func
 def _scene_margins(bd: Bodies, sc: SceneArgs, st: StepData, isl: int):
     """Per sphere of the island's objects: how far its start position is from touching the scene (m), or
     -1 when it carries a frozen friction force (always evaluated). The scene distance is 1-Lipschitz, so a
@@ -183,11 +192,7 @@ def _scene_margins(bd: Bodies, sc: SceneArgs, st: StepData, isl: int):
         for s in range(bd.radius.shape[1]):
             m = wp.float64(-1.0)
             if st.stiffness[o, s] != _ZERO and st.friction_scale[o, s] <= _ZERO:
-                sdf, n = boxes_distance(st.start_x[o, s], sc.has_ground, sc.box_centers, sc.box_rotations,
-                                        sc.box_half_extents, sc.far_m)  # fmt: skip
-                if sc.has_points != 0:
-                    sdf, n = points_distance(sc.grid, st.start_x[o, s], sc.static_points, sc.point_radius_m,
-                                             sc.point_search_m, sdf, n)  # fmt: skip
+                sdf, n = _scene_distance(sc, st.start_x[o, s])
                 m = sdf - bd.radius[o, s]
             st.margin[o, s] = m
 
@@ -808,10 +813,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
         k = ss.scene_stiffness[o]
         for s in range(bd.radius.shape[1]):
             x = sphere_position(ss.tm_now, bd.rest, bd.b, o, s, cols)
-            sdf, n = boxes_distance(x, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents,
-                                    sc.far_m)  # fmt: skip
-            if sc.has_points != 0:
-                sdf, n = points_distance(sc.grid, x, sc.static_points, sc.point_radius_m, sc.point_search_m, sdf, n)
+            sdf, n = _scene_distance(sc, x)
             valid = wp.float64(ss.valid[o, s])
             depth = wp.max(bd.radius[o, s] - sdf, _ZERO) * valid
             st.start_x[o, s] = x
@@ -993,6 +995,9 @@ class FusedNewton:
         self._step.live_count = self._step_live_count
         self._pair_capacity = -1
         self._substeps: Substeps | None = None
+        # solve_substeps: the states it advances and the per-object scene stiffness, N/m
+        self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)
+        self.scene_k = torch.zeros(n, **like)
 
     def _step_data(self, objective: StepObjective) -> StepData:
         """The step's data for the kernels: ``objective``'s states, gravity and h^2, and the contact data of
@@ -1116,8 +1121,7 @@ class FusedNewton:
         some island needs ``minimise`` (nothing is kept: the caller solves the sub-steps one by one)."""
         n_isl, _ = self.shape
         c = self.contact
-        c.prepare(c.stiffness, c.friction_scale, c.start_x, c.start_normals, smoothing_m, h_s * h_s,
-                  pairs if pairs is not None and pairs.num_pairs else None)  # fmt: skip
+        c.prepare_pairs(smoothing_m, h_s * h_s, pairs if pairs is not None and pairs.num_pairs else None)
         st = self._bind_step(gravity_m_s2, h_s * h_s)
         st.live_order = self._live_order_wp
         ss = self._substep_buffers(num_sub)
@@ -1161,21 +1165,19 @@ class FusedNewton:
         )  # fmt: skip
 
     def _substep_buffers(self, num_sub: int) -> Substeps:
-        """The :class:`Substeps` arguments over buffers for at least ``num_sub`` sub-steps (kept, grown)."""
+        """The :class:`Substeps` arguments over buffers for at least ``num_sub`` sub-steps (kept; reallocated for
+        more sub-steps or after the pair buffers grew)."""
         have = 0 if self._substeps is None else self.sub_stats.shape[0]
         if num_sub <= have:
             return self._substeps
         like = dict(dtype=self.q.dtype, device=self.q.device)
-        n, _, k = self.tm.shape
-        s = self.sphere_x.shape[1]
+        n, s = self.sphere_x.shape[:2]
         capacity = len(self.pair_mu)
-        count = max(num_sub, 2 * have)
+        count = num_sub
         ss = Substeps()
-        if self._substeps is None or not hasattr(self, "tm_now"):
-            self.tm_now, self.tmdot = torch.zeros(n, 3, k, **like), torch.zeros(n, 3, k, **like)
-            self.scene_k = torch.zeros(n, **like)
         self.sub_sphere_x = torch.zeros(count, n, s, 3, **like)
-        self.sub_scene_force, self.sub_scene_normal = torch.zeros_like(self.sub_sphere_x), torch.zeros_like(self.sub_sphere_x)
+        self.sub_scene_force = torch.zeros_like(self.sub_sphere_x)
+        self.sub_scene_normal = torch.zeros_like(self.sub_sphere_x)
         self.sub_pair_force = torch.zeros(count, capacity, 3, **like)
         self.sub_pair_normal = torch.zeros_like(self.sub_pair_force)
         self.sub_stats = torch.zeros(count, self.shape[0], NUM_STATS, dtype=torch.int32, device=self.q.device)

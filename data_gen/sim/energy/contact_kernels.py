@@ -521,6 +521,11 @@ class WarpContact:
         self.friction_scale.copy_(friction_scale_n)
         self.start_x.copy_(start_x_m)
         self.start_normals.copy_(start_normals)
+        self.prepare_pairs(smoothing_m, scale, pairs)
+
+    def prepare_pairs(self, smoothing_m: float, scale: float, pairs) -> None:
+        """The pair part of :meth:`prepare` (candidate pairs, smoothing, scale), the per-sphere scene data left
+        as it is: what a caller that computes the scene data itself (the fused sub-steps) loads."""
         self.num_pairs = 0 if pairs is None else pairs.num_pairs
         if self.num_pairs > self._pair_capacity:
             self._grow_pairs(self.num_pairs)
