@@ -701,22 +701,26 @@ def evaluate_islands_kernel(
     flagged[isl] = f
 
 
+@wp.struct
+class ForceOutputs:
+    """The contact forces of solve results, one row per (sub)step: sphere positions (m), scene contact +
+    friction forces (N) and scene normals (step, n, S); pair forces on side i (N) and normals j -> i
+    (step, pairs)."""
+
+    sphere_x: wp.array3d(dtype=wp.vec3d)
+    scene_force: wp.array3d(dtype=wp.vec3d)
+    scene_normal: wp.array3d(dtype=wp.vec3d)
+    pair_force: wp.array2d(dtype=wp.vec3d)
+    pair_normal: wp.array2d(dtype=wp.vec3d)
+
+
 @wp.func
-def _final_forces(
-    bd: Bodies,
-    sc: SceneArgs,
-    st: StepData,
-    wk: Work,
-    isl: int,
-    sphere_x: wp.array2d(dtype=wp.vec3d),
-    scene_force: wp.array2d(dtype=wp.vec3d),
-    scene_normal: wp.array2d(dtype=wp.vec3d),
-    pair_force: wp.array(dtype=wp.vec3d),
-    pair_normal: wp.array(dtype=wp.vec3d),
-):
-    """Island ``isl`` at ``wk.q`` (a solve's result; its margins still hold): every sphere's position (m),
-    scene contact + friction force (N) and scene normal, and every pair's force on side i (N) and normal
-    j -> i, zero where inactive: what :meth:`StepObjective.forces` returns, for the recorder."""
+def _final_forces(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, out: ForceOutputs, j: int):
+    """Island ``isl`` at ``wk.q`` (a solve's result; its margins still hold) into row ``j`` of ``out``: every
+    sphere's position, scene force and normal, and every pair's force and normal, zero where inactive: what
+    :meth:`StepObjective.forces` returns, for the recorder."""
+    sphere_x, scene_force, scene_normal = out.sphere_x[j], out.scene_force[j], out.scene_normal[j]
+    pair_force, pair_normal = out.pair_force[j], out.pair_normal[j]
     tm = wk.tm
     _load_state(bd, wk.q, tm, isl)
     zero = wp.vec3d(_ZERO, _ZERO, _ZERO)
@@ -745,19 +749,9 @@ def _final_forces(
 
 
 @wp.kernel
-def final_forces_kernel(
-    bd: Bodies,
-    sc: SceneArgs,
-    st: StepData,
-    wk: Work,
-    sphere_x: wp.array2d(dtype=wp.vec3d),
-    scene_force: wp.array2d(dtype=wp.vec3d),
-    scene_normal: wp.array2d(dtype=wp.vec3d),
-    pair_force: wp.array(dtype=wp.vec3d),
-    pair_normal: wp.array(dtype=wp.vec3d),
-):
-    """:func:`_final_forces` of every island (one thread each)."""
-    _final_forces(bd, sc, st, wk, wp.tid(), sphere_x, scene_force, scene_normal, pair_force, pair_normal)
+def final_forces_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, out: ForceOutputs):
+    """:func:`_final_forces` of every island (one thread each) into row 0 of ``out``."""
+    _final_forces(bd, sc, st, wk, wp.tid(), out, 0)
 
 
 @wp.struct
@@ -777,11 +771,7 @@ class Substeps:
     pair_margin_m: wp.float64  # the broad phase's margin (gap below which spheres are candidates)
     iterations: int
     line_search_steps: int
-    sphere_x: wp.array3d(dtype=wp.vec3d)  # (sub, n, S) outputs per sub-step, see _final_forces
-    scene_force: wp.array3d(dtype=wp.vec3d)
-    scene_normal: wp.array3d(dtype=wp.vec3d)
-    pair_force: wp.array2d(dtype=wp.vec3d)  # (sub, pairs)
-    pair_normal: wp.array2d(dtype=wp.vec3d)
+    forces: ForceOutputs  # one row per sub-step, see _final_forces
     stats: wp.array3d(dtype=wp.int32)  # (sub, n_isl, NUM_STATS)
 
 
@@ -873,8 +863,7 @@ def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Subst
             ss.stats[j, isl, k] = wk.stats[isl, k]
         if wk.stats[isl, STATUS] != SOLVED:
             return
-        _final_forces(bd, sc, st, wk, isl, ss.sphere_x[j], ss.scene_force[j], ss.scene_normal[j], ss.pair_force[j],
-                      ss.pair_normal[j])  # fmt: skip
+        _final_forces(bd, sc, st, wk, isl, ss.forces, j)
         for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):  # wk.tm holds the result
             o = bd.island_objects[slot]
             for r in range(3):
@@ -978,10 +967,13 @@ class FusedNewton:
         # (n, 2) columns each object's rows hold in hess (the kernels keep it: hess is cleared only there)
         self.band = torch.zeros(n, 2, dtype=i32, device=model.mass_kg.device)
         self.stats = torch.zeros(n_isl, NUM_STATS, dtype=i32, device=model.mass_kg.device)
-        self.sphere_x = torch.zeros(n, model.sphere_radius_m.shape[1], 3, **like)
-        self.scene_force = torch.zeros_like(self.sphere_x)
-        self.scene_normals = torch.zeros_like(self.sphere_x)
-        self._force_arrays = [_wp(t, wp.vec3d) for t in (self.sphere_x, self.scene_force, self.scene_normals)]
+        # forces() output: one row of ForceOutputs (the pair rows are bound with the pair buffers)
+        self._sphere_rows = [torch.zeros(1, n, model.sphere_radius_m.shape[1], 3, **like) for _ in range(3)]
+        self.sphere_x, self.scene_force, self.scene_normals = (t[0] for t in self._sphere_rows)
+        self._forces = ForceOutputs()
+        self._forces.sphere_x, self._forces.scene_force, self._forces.scene_normal = (
+            _wp(t, wp.vec3d) for t in self._sphere_rows
+        )
         self.threshold = torch.zeros(n_isl, **like)
         self.trust = torch.zeros(n_isl, **like)
         wk = Work()
@@ -1024,9 +1016,10 @@ class FusedNewton:
             st.pair_stiffness, st.radius_sum, st.pair_friction_scale = (_wp(t) for t in c_scal)
             self._obj_i = c_ints[0]
             self.pair_order = torch.zeros_like(c_ints[0])
-            self.pair_force = torch.zeros(len(c_ints[0]), 3, dtype=self.q.dtype, device=self.q.device)
-            self.pair_normals = torch.zeros_like(self.pair_force)
-            self._pair_force_arrays = [_wp(self.pair_force, wp.vec3d), _wp(self.pair_normals, wp.vec3d)]
+            pair_rows = [torch.zeros(1, len(c_ints[0]), 3, dtype=self.q.dtype, device=self.q.device) for _ in "fn"]
+            self.pair_force, self.pair_normals = pair_rows[0][0], pair_rows[1][0]
+            self._forces.pair_force, self._forces.pair_normal = (_wp(t, wp.vec3d) for t in pair_rows)
+            self._pair_rows = pair_rows
             self._identity_pairs = 0  # pair_order[:k] = 0..k-1 for this k (one-island solves)
             st.pair_start, st.pair_order = _wp(self.pair_start), _wp(self.pair_order)
             self.live_order = torch.zeros_like(c_ints[0])
@@ -1184,10 +1177,12 @@ class FusedNewton:
         ss.tm_now, ss.tmdot = _wp(self.tm_now), _wp(self.tmdot)
         ss.scene_stiffness, ss.friction = _wp(self.scene_k), _wp(self._keep["friction"])
         ss.valid, ss.pair_mu = _wp(self._keep["valid"]), _wp(self.pair_mu)
-        ss.sphere_x, ss.scene_force, ss.scene_normal = (
+        forces = ForceOutputs()
+        forces.sphere_x, forces.scene_force, forces.scene_normal = (
             _wp(t, wp.vec3d) for t in (self.sub_sphere_x, self.sub_scene_force, self.sub_scene_normal)
         )
-        ss.pair_force, ss.pair_normal = _wp(self.sub_pair_force, wp.vec3d), _wp(self.sub_pair_normal, wp.vec3d)
+        forces.pair_force, forces.pair_normal = _wp(self.sub_pair_force, wp.vec3d), _wp(self.sub_pair_normal, wp.vec3d)
+        ss.forces = forces
         ss.stats = _wp(self.sub_stats)
         self._substeps = ss
         return ss
@@ -1199,7 +1194,7 @@ class FusedNewton:
 
         n_isl, _ = self.shape
         wp.launch(final_forces_kernel, dim=n_isl, device=self.device, inputs=[
-            self.bodies, self.scene, self._step, self.work, *self._force_arrays, *self._pair_force_arrays,
+            self.bodies, self.scene, self._step, self.work, self._forces,
         ])  # fmt: skip
         p = int(self._step.num_pairs)
         return ContactForces(self.scene_force.clone(), self.scene_normals.clone(), self.sphere_x.clone(),
