@@ -374,13 +374,24 @@ class FrameRecorder:
         """Append one frame.  ``forces``/``partners`` are per cubature point; ``sphere_forces`` (k,3) N per
         contact sphere, when given, set the stress of single-handle (near-rigid) objects, see
         :func:`rigid_mean_hydrostatic_pa`."""
+        frames, rigids = [], []
         for k, model in enumerate(self.models):
-            self.frames[k].append(
-                _object_frame(
-                    model, self.contacts[k], self.constants[k], qs[k], qdots[k], forces[k], partners[k],
-                    asleep[k], None if sphere_forces is None else sphere_forces[k],
-                )
-            )
+            frame, rigid = _object_frame(
+                model, self.contacts[k], self.constants[k], qs[k], qdots[k], forces[k], partners[k],
+                asleep[k], None if sphere_forces is None else sphere_forces[k],
+            )  # fmt: skip
+            frames.append(frame)
+            rigids.append(rigid)
+        if rigids:  # orientations and angular velocities of all objects at once (batched SVD and least squares)
+            rotations = rotation_from_cross_covariance(np.stack([r.cross_covariance_m2 for r in rigids]))
+            omegas = angular_velocities_from_moments(
+                torch.from_numpy(np.stack([r.inertia_kg_m2 for r in rigids])),
+                torch.from_numpy(np.stack([r.angular_momentum_kg_m2_s for r in rigids])),
+            ).numpy()
+            for k, frame in enumerate(frames):
+                frame["orientation_wxyz"] = matrix_to_quat_one(rotations[k])
+                frame["angular_velocity_rad_s"] = omegas[k]
+                self.frames[k].append(frame)
         for key, value in energies.items():
             self.energies[key].append(value)
 
@@ -415,7 +426,9 @@ def _object_frame(
     partner: torch.Tensor,
     asleep: bool,
     sphere_force: torch.Tensor | None,
-) -> dict:
+) -> tuple[dict, RigidFrame]:
+    """One object's frame record, but its orientation and angular velocity (None here), and its rigid-body
+    moments (from which :meth:`FrameRecorder.record` derives those two for all objects at once)."""
     x = model.positions(q)
     F = model.deformation_gradients(q)
     sphere_x = contact.positions(q)
@@ -430,11 +443,7 @@ def _object_frame(
         stress = np.full(model.num_points, mean)
     else:
         stress = model.cauchy_hydrostatic(q).numpy()
-    rotation = rotation_from_cross_covariance(rigid.cross_covariance_m2)
-    omega = angular_velocity_from_moments(
-        torch.from_numpy(rigid.inertia_kg_m2), torch.from_numpy(rigid.angular_momentum_kg_m2_s)
-    )
-    return {
+    frame = {
         "handle_transforms": q_np[constants.z_from_q],
         "cubature_positions_m": x.numpy(),
         "contact_positions_m": sphere_x.numpy(),
@@ -444,11 +453,12 @@ def _object_frame(
         "hydrostatic_stress_pa": stress,
         "det_f": det3(F.numpy()),
         "com_m": rigid.com_m,
-        "orientation_wxyz": matrix_to_quat_one(rotation),
+        "orientation_wxyz": None,  # FrameRecorder.record fills these two for all objects at once
         "velocity_m_s": rigid.velocity_m_s,
-        "angular_velocity_rad_s": omega.numpy(),
+        "angular_velocity_rad_s": None,
         "asleep": np.bool_(asleep),
     }
+    return frame, rigid
 
 
 def rigid_mean_hydrostatic_pa(
@@ -522,3 +532,11 @@ def angular_velocity_from_moments(
     """omega (rad/s) = I^-1 L (least squares, so a degenerate inertia still gives an answer) from the inertia
     tensor (3,3) kg m^2 and angular momentum (3,) kg m^2/s about the centre of mass."""
     return torch.linalg.lstsq(inertia_kg_m2, angular_momentum_kg_m2_s[:, None]).solution[:, 0]
+
+
+def angular_velocities_from_moments(
+    inertia_kg_m2: torch.Tensor, angular_momentum_kg_m2_s: torch.Tensor
+) -> torch.Tensor:
+    """:func:`angular_velocity_from_moments` of a batch: inertia tensors (n, 3, 3) kg m^2 and angular momenta
+    (n, 3) kg m^2/s give omegas (n, 3) rad/s."""
+    return torch.linalg.lstsq(inertia_kg_m2, angular_momentum_kg_m2_s[:, :, None]).solution[:, :, 0]

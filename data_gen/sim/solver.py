@@ -57,6 +57,7 @@ from data_gen.sim.contact import pair_contact, pair_depth
 from data_gen.sim.contact_points import ContactPoints
 from data_gen.sim.contacts import BroadPhase, Contacts
 from data_gen.sim.energy import point_terms
+from data_gen.sim.energy.elastic import elastic
 from data_gen.sim.energy.pair_contact import FROZEN, PairSet
 from data_gen.sim.energy.scene_sdf import SceneDistance
 from data_gen.sim.model import DofLayout, Model, padded_index
@@ -278,6 +279,12 @@ class ImplicitEulerSolver:
         )
         self.scene_distance = SceneDistance(scene)
         self._padded_index = [padded_index(b.model.num_handles, self.model.columns) for b in bodies]
+        width = 3 * self.model.columns  # every object's q entries in the flattened padded (n, 3, K) states
+        self._all_padded = (
+            torch.cat([index + o * width for o, index in enumerate(self._padded_index)])
+            if bodies
+            else torch.zeros(0, dtype=torch.int64)
+        )
         self._median_radius_m = [float(b.radius_m.median()) for b in bodies]
         self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
         self._one_handle = [b.model.num_handles == 1 for b in bodies]
@@ -467,7 +474,7 @@ class ImplicitEulerSolver:
         """Kinetic, elastic, contact and gravity potential energy (J) of the current state."""
         state = self.state
         kin = sum(b.model.kinetic_energy(qdot) for b, qdot in zip(self.bodies, state.qdot))
-        ela = sum(b.model.elastic_energy(q) for b, q in zip(self.bodies, state.q))
+        ela = sum(self._elastic_energies_j().tolist())
         grav = sum(b.model.gravity_energy(q, self.gravity) for b, q in zip(self.bodies, state.q))
         positions = self._contact_positions()
         con = 0.0
@@ -492,6 +499,16 @@ class ImplicitEulerSolver:
         return {"kinetic": kin, "elastic": ela, "contact": con, "gravity": grav}
 
     # ------------------------------------------------------------------ sphere positions, waking, sleep
+    def _elastic_energies_j(self) -> torch.Tensor:
+        """(n,) elastic energy of each object at the current state, J: one batched evaluation over the
+        solver's model (a one-handle object's uniform F on its single cubature point of the whole volume)."""
+        n, k = len(self.bodies), self.model.columns
+        tm = torch.zeros(n * 3 * k, dtype=DTYPE)
+        if n:
+            tm[self._all_padded] = torch.cat(list(self.state.q))
+        m = self.model
+        return elastic(m.cub_c, m.cub_volume_m3, m.mu_pa, m.lam_pa, m.spd_tolerance_pa, tm.reshape(n, 3, k), False).energy
+
     def _contact_positions(self) -> list[torch.Tensor]:
         """Per object: (k,3) world contact sphere centres, m, of the current state."""
         return [b.contact_positions(q) for b, q in zip(self.bodies, self.state.q)]
