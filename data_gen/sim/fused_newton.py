@@ -27,6 +27,7 @@ so this path suits many small islands; large islands want the batched path.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import torch
@@ -121,8 +122,8 @@ class StepData:
     tm_start: wp.array3d(dtype=wp.float64)  # (n, 3, K) the states at the start of the step
     margin: wp.array2d(dtype=wp.float64)  # (n, S) scratch: start distance to the scene minus radius, m
     gravity: wp.vec3d  # m/s^2
-    h2: wp.float64  # s^2
-    smoothing_m: wp.float64
+    h2: wp.array(dtype=wp.float64)  # (n_isl,) each island's (sub)step squared, s^2
+    smoothing_m: wp.array(dtype=wp.float64)  # (n,) friction smoothing of each object's (sub)step, m
     stiffness: wp.array2d(dtype=wp.float64)  # (n, S) N/m, 0 on padding
     friction_scale: wp.array2d(dtype=wp.float64)  # (n, S) mu lam, N
     start_x: wp.array2d(dtype=wp.vec3d)
@@ -224,8 +225,9 @@ def _step_limits(bd: Bodies, st: StepData, isl: int, tolerance: wp.float64, grav
                                                  st.tm_pred[o, 2, a] - st.tm_start[o, 2, a])  # fmt: skip
             moved = wp.max(moved, wp.length(u))
     root_mass = wp.sqrt(bd.island_mass[isl])
-    scale = wp.sqrt(wp.max(mass2, _ZERO)) + st.h2 * gravity_norm * root_mass + wp.float64(1e-9) * root_mass
-    trust = wp.float64(2.0) * moved + st.h2 * gravity_norm + bd.island_radius[isl]
+    h2 = st.h2[isl]
+    scale = wp.sqrt(wp.max(mass2, _ZERO)) + h2 * gravity_norm * root_mass + wp.float64(1e-9) * root_mass
+    trust = wp.float64(2.0) * moved + h2 * gravity_norm + bd.island_radius[isl]
     return tolerance * scale, trust
 
 
@@ -246,7 +248,7 @@ def _scene_sphere(bd: Bodies, sc: SceneArgs, st: StepData, tm: wp.array3d(dtype=
     """:func:`scene_sphere_terms` of sphere (o, s) with the step's and scene's data."""
     return scene_sphere_terms(
         tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x, st.start_normal,
-        st.smoothing_m, sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m,
+        st.smoothing_m[o], sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m,
         sc.has_points, sc.grid, sc.static_points, sc.point_radius_m, sc.point_search_m, o, s,
     )  # fmt: skip
 
@@ -265,7 +267,7 @@ def _pair_at(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), p: int)
         cols_j = bd.columns[oj]
     active, e, g, h, normal = pair_terms(
         tm, bd.rest, bd.b, oi, si, cols_i, oj, sj, cols_j, st.frozen_x_j[p], st.pair_stiffness[p],
-        st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p], st.x0_j[p], st.smoothing_m,
+        st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p], st.x0_j[p], st.smoothing_m[oi],
     )  # fmt: skip
     return active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j
 
@@ -337,7 +339,7 @@ def _evaluate(
             band[o, 1] = end_dof
         for r in range(bd.island_dofs[isl], n_size):  # padding: identity rows (nothing else is written there)
             hess[base + r * n_size + r] = _ONE
-    h2 = st.h2
+    h2 = st.h2[isl]
     value = _ZERO
     flagged = int(0)
     for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
@@ -761,7 +763,8 @@ class Substeps:
 
     tm_now: wp.array3d(dtype=wp.float64)  # (n, 3, K) padded states: the start, then after each sub-step
     tmdot: wp.array3d(dtype=wp.float64)  # (n, 3, K) their rates, 1/s
-    h: wp.float64  # sub-step, s
+    h: wp.array(dtype=wp.float64)  # (n_isl,) each island's sub-step, s
+    num_sub: wp.array(dtype=wp.int32)  # (n_isl,) each island's number of sub-steps
     scene_stiffness: wp.array(dtype=wp.float64)  # (n,) N/m per contact sphere
     friction: wp.array(dtype=wp.float64)  # (n,) Coulomb coefficients
     valid: wp.array2d(dtype=wp.int32)  # (n, S) 1 for real spheres
@@ -793,13 +796,14 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
     sub-step are the island's live ones (``st.live_order``): as the solver's sub-step filter
     (:meth:`data_gen.sim.contacts.BroadPhase.within_reach`), start gap below the margin plus 1.5 h times
     the spheres' relative speed plus what gravity adds to both."""
+    h = ss.h[isl]
     for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
         o = bd.island_objects[slot]
         cols = bd.columns[o]
         for r in range(3):
             for a in range(cols):
                 st.tm_start[o, r, a] = ss.tm_now[o, r, a]
-                st.tm_pred[o, r, a] = ss.tm_now[o, r, a] + ss.h * ss.tmdot[o, r, a]
+                st.tm_pred[o, r, a] = ss.tm_now[o, r, a] + h * ss.tmdot[o, r, a]
         k = ss.scene_stiffness[o]
         for s in range(bd.radius.shape[1]):
             x = sphere_position(ss.tm_now, bd.rest, bd.b, o, s, cols)
@@ -811,7 +815,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             st.stiffness[o, s] = k * valid
             st.friction_scale[o, s] = ss.friction[o] * (k * depth)
     live = int(0)
-    reach_g = wp.float64(2.0) * ss.gravity_norm * ss.h * ss.h + ss.pair_margin_m
+    reach_g = wp.float64(2.0) * ss.gravity_norm * h * h + ss.pair_margin_m
     for m in range(st.pair_start[isl], st.pair_start[isl + 1]):
         p = st.pair_order[m]
         oi = st.obj_i[p]
@@ -825,7 +829,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             vj = sphere_velocity(ss.tmdot, bd.b, oj, st.sph_j[p], bd.columns[oj])
         delta = xi - xj
         dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
-        if dist - st.radius_sum[p] >= wp.float64(1.5) * ss.h * wp.length(vi - vj) + reach_g:
+        if dist - st.radius_sum[p] >= wp.float64(1.5) * h * wp.length(vi - vj) + reach_g:
             continue  # cannot touch within the sub-step
         st.live_order[st.pair_start[isl] + live] = p
         live = live + 1
@@ -841,15 +845,17 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
 
 
 @wp.kernel
-def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps, num_sub: int):
-    """Island ``isl`` through ``num_sub`` implicit Euler sub-steps of ``ss.h``: each starts from the previous
+def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps):
+    """Island ``isl`` through its ``ss.num_sub[isl]`` implicit Euler sub-steps of ``ss.h[isl]`` (islands may
+    differ: rows beyond an island's count are left alone): each starts from the previous
     one's result (:func:`_substep_start`), is solved by :func:`_newton` (its own threshold and trust radius)
     and leaves its contact forces in the outputs (:func:`_final_forces`) and its counters in ``ss.stats``;
     ``ss.tm_now`` / ``ss.tmdot`` end at the last one's state and rate. A sub-step that needs ``minimise``
     stops the island there (its status in ``ss.stats``)."""
     isl = wp.tid()
     kp = bd.flat_index.shape[1] // 3
-    for j in range(num_sub):
+    h = ss.h[isl]
+    for j in range(ss.num_sub[isl]):
         _substep_start(bd, sc, st, ss, isl)
         thr, trust = _step_limits(bd, st, isl, ss.tolerance, ss.gravity_norm)
         for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):  # q0 = the predicted states
@@ -868,7 +874,7 @@ def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Subst
             o = bd.island_objects[slot]
             for r in range(3):
                 for a in range(bd.columns[o]):
-                    ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / ss.h
+                    ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / h
                     ss.tm_now[o, r, a] = wk.tm[o, r, a]
 
 
@@ -889,6 +895,27 @@ class SubstepResult:
     sphere_positions_m: torch.Tensor
     pair_force_i_n: torch.Tensor
     pair_normals: torch.Tensor
+
+    def part(self, slots: tuple[int, int], rows: tuple[int, int], num_sub: int) -> SubstepResult:
+        """The result of the objects in solve slots ``slots`` and the pairs in rows ``rows`` over their first
+        ``num_sub`` sub-steps (views; the whole result when that is all of it). ``iterations`` and ``counters``
+        stay those of the whole launch."""
+        (s0, s1), (p0, p1) = slots, rows
+        if (s0, s1, p0, p1, num_sub) == (0, self.tm.shape[0], 0, self.pair_force_i_n.shape[1], len(self.forces)):
+            return self
+        from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
+
+        forces = [
+            ContactForces(f.scene_force_n[s0:s1], f.scene_normals[s0:s1], f.sphere_positions_m[s0:s1],
+                          f.pair_force_i_n[p0:p1], f.pair_normals[p0:p1])  # fmt: skip
+            for f in self.forces[:num_sub]
+        ]
+        return SubstepResult(
+            self.tm[s0:s1], self.tmdot[s0:s1], self.iterations[:num_sub], self.counters, forces,
+            self.scene_force_n[:num_sub, s0:s1], self.scene_normals[:num_sub, s0:s1],
+            self.sphere_positions_m[:num_sub, s0:s1], self.pair_force_i_n[:num_sub, p0:p1],
+            self.pair_normals[:num_sub, p0:p1],
+        )  # fmt: skip
 
 
 def _wp(t: torch.Tensor, dtype=None) -> wp.array:
@@ -985,6 +1012,11 @@ class FusedNewton:
         self._limits = [_wp(self.threshold), _wp(self.trust)]
         self._step = StepData()
         self._step.live_count = self._step_live_count
+        self.h2 = torch.zeros(n_isl, **like)  # s^2 per island, and friction smoothing (m) per object
+        self.smoothing = torch.zeros(n, **like)
+        self._step.h2, self._step.smoothing_m = _wp(self.h2), _wp(self.smoothing)
+        self.sub_h = torch.zeros(n_isl, **like)  # the sub-steps (s) and their number, per island
+        self.sub_count = torch.zeros(n_isl, dtype=i32, device=model.mass_kg.device)
         self._pair_capacity = -1
         self._substeps: Substeps | None = None
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
@@ -1029,8 +1061,8 @@ class FusedNewton:
         g = gravity_m_s2.tolist()
         st.gravity = wp.vec3d(g[0], g[1], g[2])
         self._gravity_norm = float(gravity_m_s2.norm())
-        st.h2 = wp.float64(h2)
-        st.smoothing_m = wp.float64(c.smoothing_m)
+        self.h2.fill_(h2)
+        self.smoothing.fill_(c.smoothing_m)
         p = int(c.num_pairs)
         st.num_pairs = p
         if self.shape[0] == 1:  # one island: every pair, in order
@@ -1100,12 +1132,14 @@ class FusedNewton:
         }
         return NewtonResult(self.q.view(n_isl, size).clone(), out[:, ITERATIONS], out[:, CONVERGED].bool(), counters)
 
-    def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float, num_sub: int,
-                       gravity_m_s2: torch.Tensor, settings: NewtonSettings, scene_stiffness_n_m: torch.Tensor,
-                       smoothing_m: float, pairs: PairSet | None, pair_mu: torch.Tensor,
-                       pair_margin_m: float) -> SubstepResult | None:  # fmt: skip
+    def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],
+                       num_sub: int | Sequence[int], gravity_m_s2: torch.Tensor, settings: NewtonSettings,
+                       scene_stiffness_n_m: torch.Tensor, smoothing_m: float | Sequence[float], pairs: PairSet | None,
+                       pair_mu: torch.Tensor, pair_margin_m: float) -> SubstepResult | None:  # fmt: skip
         """``num_sub`` implicit Euler sub-steps of ``h_s`` seconds of every island in one launch
-        (:func:`substeps_kernel`), from padded states ``tm`` and rates ``tmdot`` (n, 3, K). Each sub-step's
+        (:func:`substeps_kernel`), from padded states ``tm`` and rates ``tmdot`` (n, 3, K). ``h_s``, ``num_sub``
+        and ``smoothing_m`` are one value for every island or one per island (islands of one launch may take
+        different sub-steps; result rows beyond an island's count hold nothing of it). Each sub-step's
         start data is computed as :class:`StepObjective` computes it (scene stiffness ``scene_stiffness_n_m``
         (n,) N/m per sphere, the objects' friction, friction smoothing ``smoothing_m`` m), the candidate
         ``pairs`` (their frozen normal forces from each sub-step's start, friction coefficients ``pair_mu``
@@ -1113,11 +1147,22 @@ class FusedNewton:
         broad phase's margin), and each is solved as :meth:`solve` solves one. None when a sub-step of
         some island needs ``minimise`` (nothing is kept: the caller solves the sub-steps one by one)."""
         n_isl, _ = self.shape
+        h_isl = [float(h_s)] * n_isl if isinstance(h_s, (int, float)) else [float(h) for h in h_s]
+        count = [int(num_sub)] * n_isl if isinstance(num_sub, int) else [int(k) for k in num_sub]
+        eps = [float(smoothing_m)] * n_isl if isinstance(smoothing_m, (int, float)) else [float(e) for e in smoothing_m]
+        if not (len(h_isl) == len(count) == len(eps) == n_isl):
+            raise ValueError(f"solve_substeps: h_s, num_sub and smoothing_m need one value or {n_isl} (one per island)")
+        num_sub = max(count)
         c = self.contact
-        c.prepare_pairs(smoothing_m, h_s * h_s, pairs if pairs is not None and pairs.num_pairs else None)
-        st = self._bind_step(gravity_m_s2, h_s * h_s)
+        c.prepare_pairs(eps[0], h_isl[0] * h_isl[0], pairs if pairs is not None and pairs.num_pairs else None)
+        st = self._bind_step(gravity_m_s2, h_isl[0] * h_isl[0])
+        if n_isl > 1 and (min(h_isl) != max(h_isl) or min(eps) != max(eps)):  # per island (each h * h)
+            self.h2.copy_(torch.tensor([h * h for h in h_isl], dtype=self.h2.dtype))
+            self.smoothing.copy_(torch.tensor(eps, dtype=self.smoothing.dtype)[self.island_of])
         st.live_order = self._live_order_wp
         ss = self._substep_buffers(num_sub)
+        self.sub_h.copy_(torch.tensor(h_isl, dtype=self.sub_h.dtype))
+        self.sub_count.copy_(torch.tensor(count, dtype=self.sub_count.dtype))
         ss.pair_margin_m = wp.float64(pair_margin_m)
         p = int(st.num_pairs)
         self.pair_mu[:p].copy_(pair_mu[:p])
@@ -1125,12 +1170,10 @@ class FusedNewton:
         self.tmdot.copy_(tmdot)
         self.scene_k.copy_(scene_stiffness_n_m)
         self.sub_stats.zero_()
-        ss.h = wp.float64(h_s)
         ss.tolerance = wp.float64(settings.tolerance)
         ss.gravity_norm = wp.float64(self._gravity_norm)
         ss.iterations, ss.line_search_steps = int(settings.iterations), int(settings.line_search_steps)
-        wp.launch(substeps_kernel, dim=n_isl, device=self.device,
-                  inputs=[self.bodies, self.scene, st, self.work, ss, int(num_sub)])  # fmt: skip
+        wp.launch(substeps_kernel, dim=n_isl, device=self.device, inputs=[self.bodies, self.scene, st, self.work, ss])
         out = self.sub_stats[:num_sub].to(torch.int64)  # (sub, n_isl, NUM_STATS)
         if bool((out[:, :, STATUS] != SOLVED).any()):
             return None
@@ -1142,7 +1185,7 @@ class FusedNewton:
             "line_search_failures": totals[LINE_SEARCH_FAILURES],
             "line_search_extended": totals[LINE_SEARCH_EXTENDED],
             "trust_limited_steps": totals[TRUST_LIMITED],
-            "unconverged_solves": num_sub * n_isl - totals[CONVERGED],
+            "unconverged_solves": sum(count) - totals[CONVERGED],
         }
         from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
@@ -1184,6 +1227,7 @@ class FusedNewton:
         forces.pair_force, forces.pair_normal = _wp(self.sub_pair_force, wp.vec3d), _wp(self.sub_pair_normal, wp.vec3d)
         ss.forces = forces
         ss.stats = _wp(self.sub_stats)
+        ss.h, ss.num_sub = _wp(self.sub_h), _wp(self.sub_count)
         self._substeps = ss
         return ss
 

@@ -48,7 +48,9 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
+from functools import partial
 
 import numpy as np
 import torch
@@ -361,18 +363,24 @@ class ImplicitEulerSolver:
             # objects only (FusedNewton's) apart from the others
             rigid = self.fused_newton and all(self._one_handle[k] for k in island)
             by_substeps.setdefault((num_sub, rigid), []).append(island)
-        for (num_sub, rigid), group in sorted(by_substeps.items()):
+        keys = sorted(by_substeps)
+        # the islands of one-handle objects, whatever their sub-steps, in one fused launch; each sub-step
+        # class's records are taken at its place in the sorted order (the events come out in the same order)
+        t0 = time.perf_counter()
+        records = self._solve_rigid_substeps([(key[0], by_substeps[key]) for key in keys if key[1]],
+                                             contacts.pairs, positions, stats, supported)  # fmt: skip
+        self.timings["newton"] += time.perf_counter() - t0
+        for num_sub, rigid in keys:
+            group = by_substeps[(num_sub, rigid)]
             stats.substeps = max(stats.substeps, num_sub)
             self.h = self.dt / num_sub
+            if rigid and num_sub in records:
+                t0 = time.perf_counter()
+                records[num_sub]()
+                self.timings["newton"] += time.perf_counter() - t0
+                continue
             members = [k for island in group for k in island]
             member_pairs = self._member_pairs(members, contacts.pairs)
-            if rigid:  # every sub-step in one launch; None when one of them needs minimise
-                t0 = time.perf_counter()
-                iterations = self._solve_group_substeps(group, member_pairs, positions, num_sub, stats, supported)
-                self.timings["newton"] += time.perf_counter() - t0
-                if iterations is not None:
-                    stats.newton_iterations += iterations
-                    continue
             for _ in range(num_sub):
                 t0 = time.perf_counter()
                 pair_set = self._island_pairs(*member_pairs, positions)
@@ -721,68 +729,118 @@ class ImplicitEulerSolver:
             self.state.q[o] = q_o
             self.state.qdot[o] = qdot_o
         forces = fused.forces() if from_kernel else objective.forces(tm)
-        self._record_group_forces(objects, forces, ps, objective.pairs, model, h, stats, supported)
+        self._record_group_forces(objects, forces, ps, objective.pairs, model.sphere_valid, h, stats, supported)
         return int(result.iterations.sum())
 
-    def _solve_group_substeps(self, islands: list[list[int]], member_pairs: tuple[np.ndarray, np.ndarray],
-                              positions: list[torch.Tensor], num_sub: int, stats: StepStats,
-                              supported: np.ndarray) -> int | None:  # fmt: skip
-        """All ``num_sub`` sub-steps (of ``self.h``) of a group of one-handle islands in one fused launch
-        (:meth:`FusedNewton.solve_substeps`): the step's candidate pairs serve every sub-step, each sub-step's
-        contact forces are recorded as :meth:`_solve_group` records them, and ``positions`` end at the new
-        states. Returns the Newton iterations, or None (nothing changed) when the group has no fused
-        workspace, needs more than ``FUSED_MAX_SUBSTEPS`` sub-steps or one of them needs ``minimise``: the
-        caller then solves the sub-steps one by one."""
-        if num_sub > FUSED_MAX_SUBSTEPS:
-            return None
+    def _solve_rigid_substeps(self, parts: list[tuple[int, list[list[int]]]], pairs_all: np.ndarray,
+                              positions: list[torch.Tensor], stats: StepStats,
+                              supported: np.ndarray) -> dict[int, Callable[[], None]]:  # fmt: skip
+        """Every sub-step of the one-handle islands ``parts`` ((sub-steps, islands) in sorted order) in one fused
+        launch (:meth:`FusedNewton.solve_substeps`, each island with its own sub-step): the step's candidate
+        pairs of each part (stiffness and friction of its sub-step) serve all its sub-steps, the states and
+        ``positions`` end at the new states. Returns per sub-step count a callable that records that part's
+        contact forces of each sub-step as :meth:`_solve_group` records them (to be called at the part's place in
+        the step). Parts left out (an empty dict when none is left): those beyond ``FUSED_MAX_SUBSTEPS``, and all
+        of them when the launch needs ``minimise`` somewhere unless, launched part by part, some part does
+        not; the caller solves those sub-step by sub-step."""
+        parts = [(n, group) for n, group in parts if n <= FUSED_MAX_SUBSTEPS]
+        if not parts:
+            return {}
+        launched = self._launch_rigid_parts(parts, pairs_all, positions, stats, supported)
+        if launched is not None or len(parts) == 1:
+            return launched or {}
+        records: dict[int, Callable[[], None]] = {}
+        for part in parts:  # one part needs minimise: the others still take one launch each
+            records.update(self._launch_rigid_parts([part], pairs_all, positions, stats, supported) or {})
+        return records
+
+    def _launch_rigid_parts(self, parts: list[tuple[int, list[list[int]]]], pairs_all: np.ndarray,
+                            positions: list[torch.Tensor], stats: StepStats,
+                            supported: np.ndarray) -> dict[int, Callable[[], None]] | None:  # fmt: skip
+        """:meth:`_solve_rigid_substeps` in one launch; None (nothing changed) when the group has no fused
+        workspace or a sub-step of some island needs ``minimise``."""
+        islands = [island for _, group in parts for island in group]
         setup = self._group_setup(islands)
         workspace = setup.objective_workspace(self.scene_distance)
         fused = workspace.fused
         if fused is None:
             return None
         objects, slot_of, model = setup.objects, setup.slot_of, setup.model
-        h = self.h
-        ps = self._island_pairs(*member_pairs, positions, within_substep=False)
+        # each part's candidate pairs with its sub-step's stiffness; its objects and pairs are contiguous
+        part_pairs, slots, rows = [], [], []
+        s0 = p0 = 0
+        for num_sub, group in parts:
+            self.h = self.dt / num_sub
+            members = [k for island in group for k in island]
+            ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, within_substep=False)
+            part_pairs.append(ps)
+            slots.append((s0, s0 + len(members)))
+            rows.append((p0, p0 + len(ps.obj_i)))
+            s0, p0 = slots[-1][1], rows[-1][1]
+        ps = part_pairs[0] if len(parts) == 1 else _concat_pair_sets(part_pairs)
         pairs = self._group_pairs(objects, slot_of, ps, model)
         tm_n, tmdot = self._padded_states(setup)
         settings = NewtonSettings(
             self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps
         )
+        h_island = [self.dt / num_sub for num_sub, group in parts for _ in group]
+        if len(parts) == 1:
+            h = h_island[0]
+            scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h * h)
+        else:
+            h_object = torch.tensor([self.dt / num_sub for num_sub, group in parts for island in group for _ in island],
+                                    dtype=DTYPE)  # fmt: skip
+            scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h_object * h_object)
         result = fused.solve_substeps(
-            tm_n, tmdot, h, num_sub, self.gravity, settings,
-            self.preset.contact_stiffness_factor * model.mass_kg / (h * h), self.preset.friction_smoothing_m_s * h,
-            pairs, ps.mu, self.broad_phase.margin_m,
+            tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
+            scene_k, [self.preset.friction_smoothing_m_s * h for h in h_island], pairs, ps.mu,
+            self.broad_phase.margin_m,
         )  # fmt: skip
         if result is None:
             self.counters["fused_handed_back"] += 1
             return None
         for key, value in result.counters.items():
             self.counters[key] += value
-        self.counters["island_solves"] += num_sub * len(islands)
-        self.counters["island_object_solves"] += num_sub * len(objects)
-        self.counters["fused_island_solves"] += num_sub * len(islands)
+        for num_sub, group in parts:
+            self.counters["island_solves"] += num_sub * len(group)
+            self.counters["island_object_solves"] += num_sub * sum(len(island) for island in group)
+            self.counters["fused_island_solves"] += num_sub * len(group)
+        stats.newton_iterations += int(result.iterations.sum())
         q = result.tm.reshape(-1)[setup.padded]
         qdot = result.tmdot.reshape(-1)[setup.padded]
         if not bool(torch.isfinite(q).all()):
             self._check_finite(objects, list(q.split(setup.sizes)), "reduced state q")
-        for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per group
+        for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per launch
             self.state.q[o] = q_o
             self.state.qdot[o] = qdot_o
             positions[o] = self.bodies[o].contact_positions(q_o)
-        if self._record_spheres:  # each sub-step's forces, in order (impulses, peaks, sleeping partners)
-            for forces in result.forces:
-                self._record_group_forces(objects, forces, ps, pairs, model, h, stats, supported)
-        else:
-            self._record_substep_statistics(objects, result, ps, pairs, model, h, stats, supported)
-        return int(result.iterations.sum())
+
+        def record(num_sub: int, part_ps: _PairSet, slot_range: tuple[int, int], row_range: tuple[int, int]) -> None:
+            h = self.dt / num_sub
+            self.h = h
+            sub = result.part(slot_range, row_range, num_sub)
+            part = pairs if len(parts) == 1 else _pair_rows(pairs, slot_range, row_range)
+            part_objects = objects[slot_range[0]:slot_range[1]]
+            valid = model.sphere_valid[slot_range[0]:slot_range[1]]
+            if self._record_spheres:  # each sub-step's forces, in order (impulses, peaks, sleeping partners)
+                for forces in sub.forces:
+                    self._record_group_forces(part_objects, forces, part_ps, part, valid, h, stats, supported)
+            else:
+                self._record_substep_statistics(part_objects, sub, part_ps, part, valid, h, stats, supported)
+
+        return {
+            num_sub: partial(record, num_sub, part_ps, slot_range, row_range)
+            for (num_sub, _), part_ps, slot_range, row_range in zip(parts, part_pairs, slots, rows)
+        }
 
     def _record_substep_statistics(self, objects: list[int], result: SubstepResult, ps: _PairSet, pairs: PairSet,
-                                   model: Model, h: float, stats: StepStats, supported: np.ndarray) -> None:  # fmt: skip
+                                   sphere_valid: torch.Tensor, h: float, stats: StepStats,
+                                   supported: np.ndarray) -> None:  # fmt: skip
         """What :meth:`_record_group_forces` records for each sub-step of ``result`` in a step whose per-sphere
         records nobody reads, with the arithmetic batched over the sub-steps: the step statistics (per
         sub-step and object pair, in the same order), support, and each object's scene forces and summary of
         the last sub-step (kept if it falls asleep)."""
-        valid = model.sphere_valid[None, :, :, None]
+        valid = sphere_valid[None, :, :, None]
         force = result.scene_force_n * valid  # (J, n, S, 3)
         mag = force.norm(dim=3)
         total = force.sum(2)
@@ -848,7 +906,8 @@ class ImplicitEulerSolver:
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
             self._group_pairs(objects, slot_of, ps, model), setup.objective_workspace(self.scene_distance),
         )  # fmt: skip
-        self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model, h, stats, supported)
+        self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model.sphere_valid, h, stats,
+                                  supported)  # fmt: skip
 
     def _check_finite(self, objects: list[int], parts: list[torch.Tensor], quantity: str) -> None:
         for k, part in zip(objects, parts):
@@ -860,10 +919,10 @@ class ImplicitEulerSolver:
 
     # ------------------------------------------------------------------ force recording
     def _record_group_forces(self, objects: list[int], forces: ContactForces, ps: _PairSet, pairs: PairSet,
-                             model: Model, h: float, stats: StepStats, supported: np.ndarray) -> None:
+                             sphere_valid: torch.Tensor, h: float, stats: StepStats, supported: np.ndarray) -> None:
         """Per-sphere contact forces (N) of the final state, dominant partner ids, per-pair totals, from
         the forces the objective evaluated (nothing is recomputed here)."""
-        force = forces.scene_force_n * model.sphere_valid[:, :, None]
+        force = forces.scene_force_n * sphere_valid[:, :, None]
         mag = force.norm(dim=2)  # (n, S)
         total = force.sum(1)
         weight = mag.sum(1).clamp(min=1e-300)
@@ -1045,6 +1104,37 @@ class ImplicitEulerSolver:
             b.contact_force_n = torch.from_numpy(f_o)
             b.partner_strength_n = torch.from_numpy(s_o)
             b.contact_partner = torch.from_numpy(p_o)
+
+
+def _concat_pair_sets(sets: list[_PairSet]) -> _PairSet:
+    """The pair sets of several solves, one after the other (numpy fields by ``np.concatenate``, tensors by
+    ``torch.cat``)."""
+    values = {}
+    for f in fields(_PairSet):
+        parts = [getattr(ps, f.name) for ps in sets]
+        values[f.name] = np.concatenate(parts) if isinstance(parts[0], np.ndarray) else torch.cat(parts)
+    return _PairSet(**values)
+
+
+def _pair_rows(pairs: PairSet, slot_range: tuple[int, int], row_range: tuple[int, int]) -> PairSet:
+    """Rows ``row_range`` of a solve's pairs whose objects are the solve slots ``slot_range``, with the slots
+    counted from the range's start (a frozen side j stays ``FROZEN``)."""
+    lo, hi = row_range
+    obj_j = pairs.obj_j[lo:hi]
+    return PairSet(
+        obj_i=pairs.obj_i[lo:hi] - slot_range[0],
+        sph_i=pairs.sph_i[lo:hi],
+        obj_j=torch.where(obj_j >= 0, obj_j - slot_range[0], obj_j),
+        sph_j=pairs.sph_j[lo:hi],
+        frozen_x_j=pairs.frozen_x_j[lo:hi],
+        stiffness_n_m=pairs.stiffness_n_m[lo:hi],
+        radius_sum_m=pairs.radius_sum_m[lo:hi],
+        friction=pairs.friction[lo:hi],
+        normal_force_n=pairs.normal_force_n[lo:hi],
+        normal0=pairs.normal0[lo:hi],
+        x0_i=pairs.x0_i[lo:hi],
+        x0_j=pairs.x0_j[lo:hi],
+    )
 
 
 def _model_bytes(model: Model) -> int:

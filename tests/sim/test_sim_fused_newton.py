@@ -382,7 +382,7 @@ def test_steps_beyond_the_fused_substep_cap_are_solved_one_sub_step_at_a_time(mo
 
     def counted(self, tm, tmdot, h_s, num_sub, *args, **kwargs):
         calls["substeps"] += 1
-        assert num_sub <= 1
+        assert max(np.atleast_1d(num_sub)) <= 1  # one count, or one per island
         return original(self, tm, tmdot, h_s, num_sub, *args, **kwargs)
 
     per_substep = solver_module.ImplicitEulerSolver._solve_group

@@ -249,3 +249,62 @@ def test_steps_without_sphere_records_change_no_recorded_value(monkeypatch):
     assert len(full.collisions) > 0
     for key in full.energies_j:
         assert np.array_equal(lean.energies_j[key], full.energies_j[key]), key
+
+
+def test_islands_of_different_substeps_in_one_launch_record_what_one_launch_per_substep_count_records(monkeypatch):
+    """The solver puts every one-handle island of a step into one fused launch, each island with its own
+    sub-step. A thrown box next to a settling stack gives steps with islands of different sub-step counts
+    in one launch; every state, recorded array, contact event and energy equals, bit for bit, a run that
+    launches each sub-step count's islands on their own (as the solver did before), and so do the counters."""
+    from dataclasses import fields
+
+    from data_gen.sim.material import Material
+    from data_gen.sim.world import SimObjectSpec, Simulator
+    from tests.sim.test_sim_column import grid_box
+
+    def scene():
+        """A box resting on the ground, one dropped next to it, one thrown at the first, one far off falling
+        fast: islands of one to three objects that need different sub-steps in the same step."""
+        half = (0.07, 0.07, 0.05)
+        starts = [((0.0, 0.0, 0.05), (0.0, 0.0, 0.0)), ((0.3, 0.0, 0.25), (0.0, 0.0, 0.0)),
+                  ((-0.45, 0.02, 0.12), (3.0, 0.0, 0.5)), ((1.0, 0.0, 0.6), (0.0, 0.0, -4.0))]  # fmt: skip
+        specs = [
+            SimObjectSpec(f"box_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e9, 0.3, 1000.0),
+                          position_m=x, num_handles=1, velocity_m_s=v, angular_velocity_rad_s=(0.0, 4.0 * k, 0.0))
+            for k, (x, v) in enumerate(starts)
+        ]  # fmt: skip
+        return Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), "draft", seed=0).run(20, fps=25.0)
+
+    launches = []
+    launch = ImplicitEulerSolver._launch_rigid_parts
+
+    def counted(self, parts, *args):
+        launches.append(sorted(num_sub for num_sub, _ in parts))
+        return launch(self, parts, *args)
+
+    monkeypatch.setattr(ImplicitEulerSolver, "_launch_rigid_parts", counted)
+    merged = scene()
+    mixed = [counts for counts in launches if len(counts) > 1]
+    assert len(mixed) >= 3, launches  # steps whose islands took different sub-steps, in one launch
+    assert all(len(set(counts)) == len(counts) for counts in launches)
+
+    def one_launch_per_count(self, parts, pairs_all, positions, stats, supported):
+        records = {}
+        for part in parts:
+            records.update(launch(self, [part], pairs_all, positions, stats, supported) or {})
+        return records
+
+    monkeypatch.setattr(ImplicitEulerSolver, "_solve_rigid_substeps", one_launch_per_count)
+    separate = scene()
+    for a, b in zip(merged.objects, separate.objects, strict=True):
+        for f in fields(a):
+            if isinstance(getattr(a, f.name), np.ndarray):
+                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+    assert len(merged.collisions) == len(separate.collisions) > 0
+    for e_merged, e_separate in zip(merged.collisions, separate.collisions):
+        for key, value in vars(e_separate).items():
+            assert np.array_equal(vars(e_merged)[key], value), key
+    for key in merged.energies_j:
+        assert np.array_equal(merged.energies_j[key], separate.energies_j[key]), key
+    assert merged.info.counters == separate.info.counters
+    assert merged.info.newton_iterations == separate.info.newton_iterations
