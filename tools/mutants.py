@@ -271,7 +271,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "        if False:  # per island (each h * h)",
            tests=("tests/sim/test_sim_solver_overhead.py::test_islands_of_different_substeps_in_one_launch_record_what_one_launch_per_substep_count_records",)),
     Mutant("fused_substep_part_pairs_not_rebased", "data_gen/sim/solver.py",
-           "obj_i=pairs.obj_i[lo:hi] - slot_range[0],",
+           "obj_i=local[pairs.obj_i[lo:hi]],",
            "obj_i=pairs.obj_i[lo:hi],",
            tests=("tests/sim/test_sim_solver_overhead.py::test_islands_of_different_substeps_in_one_launch_record_what_one_launch_per_substep_count_records",)),
     Mutant("friction_pushes_along_slip", "data_gen/sim/energy/point_terms.py",

@@ -896,24 +896,27 @@ class SubstepResult:
     pair_force_i_n: torch.Tensor
     pair_normals: torch.Tensor
 
-    def part(self, slots: tuple[int, int], rows: tuple[int, int], num_sub: int) -> SubstepResult:
-        """The result of the objects in solve slots ``slots`` and the pairs in rows ``rows`` over their first
-        ``num_sub`` sub-steps (views; the whole result when that is all of it). ``iterations`` and ``counters``
-        stay those of the whole launch."""
-        (s0, s1), (p0, p1) = slots, rows
-        if (s0, s1, p0, p1, num_sub) == (0, self.tm.shape[0], 0, self.pair_force_i_n.shape[1], len(self.forces)):
+    def part(self, slots: torch.Tensor, rows: tuple[int, int], num_sub: int) -> SubstepResult:
+        """The result of the objects in solve slots ``slots`` (in that order) and the pairs in rows ``rows`` over
+        their first ``num_sub`` sub-steps (the whole result when that is all of it, in order).
+        ``iterations`` and ``counters`` stay those of the whole launch."""
+        p0, p1 = rows
+        n = self.tm.shape[0]
+        if (p0, p1, num_sub) == (0, self.pair_force_i_n.shape[1], len(self.forces)) and torch.equal(
+            slots, torch.arange(n, dtype=slots.dtype)
+        ):
             return self
         from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
         forces = [
-            ContactForces(f.scene_force_n[s0:s1], f.scene_normals[s0:s1], f.sphere_positions_m[s0:s1],
+            ContactForces(f.scene_force_n[slots], f.scene_normals[slots], f.sphere_positions_m[slots],
                           f.pair_force_i_n[p0:p1], f.pair_normals[p0:p1])  # fmt: skip
             for f in self.forces[:num_sub]
         ]
         return SubstepResult(
-            self.tm[s0:s1], self.tmdot[s0:s1], self.iterations[:num_sub], self.counters, forces,
-            self.scene_force_n[:num_sub, s0:s1], self.scene_normals[:num_sub, s0:s1],
-            self.sphere_positions_m[:num_sub, s0:s1], self.pair_force_i_n[:num_sub, p0:p1],
+            self.tm[slots], self.tmdot[slots], self.iterations[:num_sub], self.counters, forces,
+            self.scene_force_n[:num_sub, slots], self.scene_normals[:num_sub, slots],
+            self.sphere_positions_m[:num_sub, slots], self.pair_force_i_n[:num_sub, p0:p1],
             self.pair_normals[:num_sub, p0:p1],
         )  # fmt: skip
 
@@ -933,17 +936,10 @@ class FusedNewton:
         self.contact = contact
         self.device = contact.device
         n = model.num_objects
-        n_isl, size = layout.num_islands, layout.island_size
-        self.shape = (n_isl, size)
         i32 = torch.int32
-        counts = torch.bincount(layout.island, minlength=n_isl)
-        object_start = torch.zeros(n_isl + 1, dtype=torch.int64)
-        object_start[1:] = torch.cumsum(counts, 0)
-        dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
+        self._model = model
         self._keep = {
-            "columns": (4 * model.num_handles).to(i32), "object_start": object_start.to(i32),
-            "island_objects": torch.sort(layout.island, stable=True).indices.to(i32),
-            "island_dofs": dofs.to(i32), "flat_index": layout.flat_index.to(i32),
+            "columns": (4 * model.num_handles).to(i32),
             "mass_matrix": model.mass_matrix, "mass_b_sum": model.mass_b_sum, "cub_c": model.cub_c,
             "cub_volume": model.cub_volume_m3, "mu_pa": model.mu_pa, "lam_pa": model.lam_pa,
             "spd_tolerance_pa": model.spd_tolerance_pa, "rest": model.sphere_rest_m, "b": model.sphere_b,
@@ -951,7 +947,6 @@ class FusedNewton:
             "extreme_count": model.sphere_extreme.sum(1).to(i32),
             # stable sort: each object's hull spheres first, in index order
             "extreme_index": torch.sort((~model.sphere_extreme).to(i32), dim=1, stable=True).indices.to(i32),
-            "island_mass": island_mass_kg, "island_radius": min_median_radius_m,
         }  # fmt: skip
         substep_constants = {"friction": model.friction, "valid": model.sphere_valid.to(i32)}
         self._keep = {key: value.contiguous() for key, value in self._keep.items()}
@@ -959,7 +954,6 @@ class FusedNewton:
         for key, value in self._keep.items():
             setattr(bd, key, _wp(value, wp.vec3d if key == "rest" else None))
         self._keep.update({key: value.contiguous() for key, value in substep_constants.items()})
-        bd.island_size = int(size)
         self.bodies = bd
         scene = contact.scene
         sc = SceneArgs()
@@ -976,24 +970,12 @@ class FusedNewton:
             sc.point_radius_m, sc.point_search_m = wp.float64(0.0), wp.float64(1.0)
         self.scene = sc
         like = dict(dtype=model.mass_kg.dtype, device=model.mass_kg.device)
-        self.q = torch.zeros(n_isl * size, **like)
-        self.trial_q = torch.zeros_like(self.q)
-        self.dq = torch.zeros_like(self.q)
-        self.grad = torch.zeros_like(self.q)
-        self.hess = torch.zeros(n_isl * size * size, **like)
-        self.chol = torch.zeros_like(self.hess)
         self.tm = torch.zeros(n, 3, model.columns, **like)
         self.tm_pred = torch.zeros_like(self.tm)
         self.tm_start = torch.zeros_like(self.tm)
         self.margin = torch.zeros_like(model.sphere_radius_m)
-        self.island_of = layout.island
-        self.pair_start = torch.zeros(n_isl + 1, dtype=i32, device=model.mass_kg.device)
-        self.live_count = torch.zeros(n_isl, dtype=i32, device=model.mass_kg.device)
-        self._step_live_count = _wp(self.live_count)
-        self.first = torch.zeros(n_isl * size, dtype=i32, device=model.mass_kg.device)
         # (n, 2) columns each object's rows hold in hess (the kernels keep it: hess is cleared only there)
         self.band = torch.zeros(n, 2, dtype=i32, device=model.mass_kg.device)
-        self.stats = torch.zeros(n_isl, NUM_STATS, dtype=i32, device=model.mass_kg.device)
         # forces() output: one row of ForceOutputs (the pair rows are bound with the pair buffers)
         self._sphere_rows = [torch.zeros(1, n, model.sphere_radius_m.shape[1], 3, **like) for _ in range(3)]
         self.sphere_x, self.scene_force, self.scene_normals = (t[0] for t in self._sphere_rows)
@@ -1001,27 +983,71 @@ class FusedNewton:
         self._forces.sphere_x, self._forces.scene_force, self._forces.scene_normal = (
             _wp(t, wp.vec3d) for t in self._sphere_rows
         )
-        self.threshold = torch.zeros(n_isl, **like)
-        self.trust = torch.zeros(n_isl, **like)
-        wk = Work()
-        wk.q, wk.trial_q, wk.tm, wk.grad, wk.hess, wk.chol, wk.dq = (
-            _wp(t) for t in (self.q, self.trial_q, self.tm, self.grad, self.hess, self.chol, self.dq)
-        )
-        wk.first, wk.band, wk.stats = _wp(self.first), _wp(self.band), _wp(self.stats)
-        self.work = wk
-        self._limits = [_wp(self.threshold), _wp(self.trust)]
+        self.work = Work()
+        self.work.tm, self.work.band = _wp(self.tm), _wp(self.band)
         self._step = StepData()
-        self._step.live_count = self._step_live_count
-        self.h2 = torch.zeros(n_isl, **like)  # s^2 per island, and friction smoothing (m) per object
-        self.smoothing = torch.zeros(n, **like)
-        self._step.h2, self._step.smoothing_m = _wp(self.h2), _wp(self.smoothing)
-        self.sub_h = torch.zeros(n_isl, **like)  # the sub-steps (s) and their number, per island
-        self.sub_count = torch.zeros(n_isl, dtype=i32, device=model.mass_kg.device)
+        self.smoothing = torch.zeros(n, **like)  # friction smoothing (m) per object
+        self._step.smoothing_m = _wp(self.smoothing)
         self._pair_capacity = -1
         self._substeps: Substeps | None = None
+        self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
         self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)
         self.scene_k = torch.zeros(n, **like)
+
+    def relayout(self, layout: DofLayout, island_mass_kg: torch.Tensor, min_median_radius_m: torch.Tensor) -> None:
+        """The same objects (in the same order) grouped into other islands: ``layout`` with its islands' masses
+        (kg) and smallest median contact radii (m). The per-object buffers and the contact object's pair buffers
+        are kept; the island-sized ones are rebuilt (a grouping costs a fraction of a new workspace)."""
+        n_isl, size = layout.num_islands, layout.island_size
+        self.shape = (n_isl, size)
+        i32 = torch.int32
+        dev = self.tm.device
+        like = dict(dtype=self.tm.dtype, device=dev)
+        counts = torch.bincount(layout.island, minlength=n_isl)
+        object_start = torch.zeros(n_isl + 1, dtype=torch.int64)
+        object_start[1:] = torch.cumsum(counts, 0)
+        dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * self._model.num_handles)
+        islands = {
+            "object_start": object_start.to(i32), "island_objects": torch.sort(layout.island, stable=True).indices.to(i32),
+            "island_dofs": dofs.to(i32), "flat_index": layout.flat_index.to(i32), "island_mass": island_mass_kg,
+            "island_radius": min_median_radius_m,
+        }  # fmt: skip
+        bd = self.bodies
+        for key, value in islands.items():
+            self._keep[key] = value.contiguous()
+            setattr(bd, key, _wp(self._keep[key]))
+        bd.island_size = int(size)
+        self.q = torch.zeros(n_isl * size, **like)
+        self.trial_q = torch.zeros_like(self.q)
+        self.dq = torch.zeros_like(self.q)
+        self.grad = torch.zeros_like(self.q)
+        self.hess = torch.zeros(n_isl * size * size, **like)
+        self.chol = torch.zeros_like(self.hess)
+        self.band.zero_()  # the new matrix is zero everywhere
+        self.island_of = layout.island
+        self.pair_start = torch.zeros(n_isl + 1, dtype=i32, device=dev)
+        self.live_count = torch.zeros(n_isl, dtype=i32, device=dev)
+        self.first = torch.zeros(n_isl * size, dtype=i32, device=dev)
+        self.stats = torch.zeros(n_isl, NUM_STATS, dtype=i32, device=dev)
+        self.threshold = torch.zeros(n_isl, **like)
+        self.trust = torch.zeros(n_isl, **like)
+        self.h2 = torch.zeros(n_isl, **like)  # s^2 per island
+        self.sub_h = torch.zeros(n_isl, **like)  # the sub-steps (s) and their number, per island
+        self.sub_count = torch.zeros(n_isl, dtype=i32, device=dev)
+        wk = self.work
+        wk.q, wk.trial_q, wk.grad, wk.hess, wk.chol, wk.dq = (
+            _wp(t) for t in (self.q, self.trial_q, self.grad, self.hess, self.chol, self.dq)
+        )
+        wk.first, wk.stats = _wp(self.first), _wp(self.stats)
+        self._limits = [_wp(self.threshold), _wp(self.trust)]
+        st = self._step
+        st.live_count, st.h2 = _wp(self.live_count), _wp(self.h2)
+        if self._pair_capacity >= 0:  # pair buffers already bound: their island order and starts anew
+            st.pair_start = _wp(self.pair_start)
+        self._identity_pairs = 0
+        if self._substeps is not None:  # the sub-step buffers stay; their per-island ones are rebound
+            self._bind_island_substeps(self._substeps, self.sub_stats.shape[0])
 
     def _step_data(self, objective: StepObjective) -> StepData:
         """The step's data for the kernels: ``objective``'s states, gravity and h^2, and the contact data of
@@ -1216,7 +1242,6 @@ class FusedNewton:
         self.sub_scene_normal = torch.zeros_like(self.sub_sphere_x)
         self.sub_pair_force = torch.zeros(count, capacity, 3, **like)
         self.sub_pair_normal = torch.zeros_like(self.sub_pair_force)
-        self.sub_stats = torch.zeros(count, self.shape[0], NUM_STATS, dtype=torch.int32, device=self.q.device)
         ss.tm_now, ss.tmdot = _wp(self.tm_now), _wp(self.tmdot)
         ss.scene_stiffness, ss.friction = _wp(self.scene_k), _wp(self._keep["friction"])
         ss.valid, ss.pair_mu = _wp(self._keep["valid"]), _wp(self.pair_mu)
@@ -1226,10 +1251,15 @@ class FusedNewton:
         )
         forces.pair_force, forces.pair_normal = _wp(self.sub_pair_force, wp.vec3d), _wp(self.sub_pair_normal, wp.vec3d)
         ss.forces = forces
-        ss.stats = _wp(self.sub_stats)
-        ss.h, ss.num_sub = _wp(self.sub_h), _wp(self.sub_count)
+        self._bind_island_substeps(ss, count)
         self._substeps = ss
         return ss
+
+    def _bind_island_substeps(self, ss: Substeps, count: int) -> None:
+        """The per-island parts of ``ss``: counters for ``count`` sub-steps, each island's sub-step and count."""
+        self.sub_stats = torch.zeros(count, self.shape[0], NUM_STATS, dtype=torch.int32, device=self.q.device)
+        ss.stats = _wp(self.sub_stats)
+        ss.h, ss.num_sub = _wp(self.sub_h), _wp(self.sub_count)
 
     def forces(self) -> ContactForces:
         """The contact forces of the last :meth:`solve`'s result (it must have returned a result): what

@@ -68,8 +68,15 @@ from data_gen.sim.presets import QualityPreset
 from data_gen.sim.reduced import DTYPE, ReducedObject
 from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
-from data_gen.sim.fused_newton import SubstepResult
-from data_gen.sim.step_objective import ContactForces, SolveWorkspace, StepObjective
+from data_gen.sim.fused_newton import FusedNewton, SubstepResult
+from data_gen.sim.step_objective import (
+    ContactForces,
+    SolveWorkspace,
+    StepObjective,
+    fused_fits,
+    island_constants,
+    rigid_fused_workspace,
+)
 
 NO_PARTNER = -1  # contact partner id of a point without contact (0 is the static scene)
 # Near contact a point may move at most this many of its contact radii per sub-step. Two approaching
@@ -92,6 +99,8 @@ _EXTRA_HALVINGS = 20
 # every sub-step and, while the scene settles, step after step.
 _GROUP_CACHE_SIZE = 64
 _GROUP_CACHE_MODELS = 8
+# Fused workspaces are kept for at most this many distinct sequences of awake one-handle objects.
+_FUSED_CACHE_SIZE = 8
 
 
 class SimulationError(RuntimeError):
@@ -290,8 +299,9 @@ class ImplicitEulerSolver:
         self._median_radius_m = [float(b.radius_m.median()) for b in bodies]
         self._object_id = np.array([b.object_id for b in bodies], dtype=np.int64)
         self._one_handle = [b.model.num_handles == 1 for b in bodies]
-        self._groups: OrderedDict[tuple[tuple[int, ...], ...], _GroupSetup] = OrderedDict()
+        self._groups: OrderedDict[tuple, _GroupSetup] = OrderedDict()
         self._groups_bytes = 0
+        self._rigid_workspaces: OrderedDict[tuple[int, ...], list] = OrderedDict()  # [FusedNewton, its layout]
         self._groups_max_bytes = _GROUP_CACHE_MODELS * _model_bytes(self.model)
         self._pair_table_cache: tuple[tuple[float, bytes], tuple[np.ndarray, np.ndarray]] | None = None
         # per object: (qdot tensor, its version, sphere velocities (n, 3) m/s, fastest speed m/s)
@@ -609,15 +619,18 @@ class ImplicitEulerSolver:
         return _PairSet(oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, gi_t, gj_t)
 
     # ------------------------------------------------------------------ Newton on a group of islands
-    def _group_setup(self, islands: list[list[int]]) -> _GroupSetup:
-        """The objects, selected model rows and DOF layout of a solve of ``islands`` (cached per islands)."""
-        key = tuple(tuple(island) for island in islands)
+    def _group_setup(self, islands: list[list[int]], sorted_objects: bool = False) -> _GroupSetup:
+        """The objects, selected model rows and DOF layout of a solve of ``islands`` (cached per islands). The
+        objects come island by island, or with ``sorted_objects`` in ascending order (the same objects grouped
+        otherwise keep their slots; an island's objects and its unknowns are in the same order either way)."""
+        key = (sorted_objects, *(tuple(island) for island in islands))
         setup = self._groups.get(key)
         if setup is not None:
             self._groups.move_to_end(key)
             return setup
-        objects = [k for island in islands for k in island]
-        island_slot = torch.tensor([a for a, island in enumerate(islands) for _ in island], dtype=torch.int64)
+        island_of = {k: a for a, island in enumerate(islands) for k in island}
+        objects = sorted(island_of) if sorted_objects else [k for island in islands for k in island]
+        island_slot = torch.tensor([island_of[k] for k in objects], dtype=torch.int64)
         slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
         slot_of[objects] = np.arange(len(objects))
         model = self.model.select(torch.tensor(objects, dtype=torch.int64))
@@ -754,29 +767,51 @@ class ImplicitEulerSolver:
             records.update(self._launch_rigid_parts([part], pairs_all, positions, stats, supported) or {})
         return records
 
+    def _rigid_workspace(self, setup: _GroupSetup) -> FusedNewton | None:
+        """The fused workspace of ``setup``'s objects (in its order), regrouped into its islands: one per object
+        sequence (the awake one-handle objects of a pile change far less often than their islands), kept for the
+        ``_FUSED_CACHE_SIZE`` sequences used last; None when the islands do not fit the kernel."""
+        key = tuple(setup.objects)
+        entry = self._rigid_workspaces.get(key)
+        if entry is None:
+            fused = rigid_fused_workspace(setup.model, setup.layout, self.scene_distance)
+            if fused is None:
+                return None
+            self._rigid_workspaces[key] = [fused, setup.layout]
+            while len(self._rigid_workspaces) > _FUSED_CACHE_SIZE:
+                self._rigid_workspaces.popitem(last=False)
+            return fused
+        self._rigid_workspaces.move_to_end(key)
+        fused, layout = entry
+        if layout is not setup.layout:
+            if not fused_fits(setup.layout):
+                return None
+            fused.relayout(setup.layout, *island_constants(setup.model, setup.layout))
+            entry[1] = setup.layout
+        return fused
+
     def _launch_rigid_parts(self, parts: list[tuple[int, list[list[int]]]], pairs_all: np.ndarray,
                             positions: list[torch.Tensor], stats: StepStats,
                             supported: np.ndarray) -> dict[int, Callable[[], None]] | None:  # fmt: skip
         """:meth:`_solve_rigid_substeps` in one launch; None (nothing changed) when the group has no fused
         workspace or a sub-step of some island needs ``minimise``."""
         islands = [island for _, group in parts for island in group]
-        setup = self._group_setup(islands)
-        workspace = setup.objective_workspace(self.scene_distance)
-        fused = workspace.fused
+        setup = self._group_setup(islands, sorted_objects=True)  # slots kept while the awake objects are
+        fused = self._rigid_workspace(setup)
         if fused is None:
             return None
         objects, slot_of, model = setup.objects, setup.slot_of, setup.model
-        # each part's candidate pairs with its sub-step's stiffness; its objects and pairs are contiguous
+        # each part's candidate pairs with its sub-step's stiffness (contiguous rows) and its objects' slots
         part_pairs, slots, rows = [], [], []
-        s0 = p0 = 0
+        p0 = 0
         for num_sub, group in parts:
             self.h = self.dt / num_sub
             members = [k for island in group for k in island]
             ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, within_substep=False)
             part_pairs.append(ps)
-            slots.append((s0, s0 + len(members)))
+            slots.append(torch.from_numpy(slot_of[members]))
             rows.append((p0, p0 + len(ps.obj_i)))
-            s0, p0 = slots[-1][1], rows[-1][1]
+            p0 = rows[-1][1]
         ps = part_pairs[0] if len(parts) == 1 else _concat_pair_sets(part_pairs)
         pairs = self._group_pairs(objects, slot_of, ps, model)
         tm_n, tmdot = self._padded_states(setup)
@@ -788,8 +823,8 @@ class ImplicitEulerSolver:
             h = h_island[0]
             scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h * h)
         else:
-            h_object = torch.tensor([self.dt / num_sub for num_sub, group in parts for island in group for _ in island],
-                                    dtype=DTYPE)  # fmt: skip
+            h_of = {k: self.dt / num_sub for num_sub, group in parts for island in group for k in island}
+            h_object = torch.tensor([h_of[k] for k in objects], dtype=DTYPE)
             scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h_object * h_object)
         result = fused.solve_substeps(
             tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
@@ -815,13 +850,13 @@ class ImplicitEulerSolver:
             self.state.qdot[o] = qdot_o
             positions[o] = self.bodies[o].contact_positions(q_o)
 
-        def record(num_sub: int, part_ps: _PairSet, slot_range: tuple[int, int], row_range: tuple[int, int]) -> None:
+        def record(num_sub: int, part_ps: _PairSet, part_slots: torch.Tensor, row_range: tuple[int, int]) -> None:
             h = self.dt / num_sub
             self.h = h
-            sub = result.part(slot_range, row_range, num_sub)
-            part = pairs if len(parts) == 1 else _pair_rows(pairs, slot_range, row_range)
-            part_objects = objects[slot_range[0]:slot_range[1]]
-            valid = model.sphere_valid[slot_range[0]:slot_range[1]]
+            sub = result.part(part_slots, row_range, num_sub)
+            part = _pair_rows(pairs, part_slots, len(objects), row_range)
+            part_objects = [objects[slot] for slot in part_slots.tolist()]  # island by island
+            valid = model.sphere_valid[part_slots]
             if self._record_spheres:  # each sub-step's forces, in order (impulses, peaks, sleeping partners)
                 for forces in sub.forces:
                     self._record_group_forces(part_objects, forces, part_ps, part, valid, h, stats, supported)
@@ -829,8 +864,8 @@ class ImplicitEulerSolver:
                 self._record_substep_statistics(part_objects, sub, part_ps, part, valid, h, stats, supported)
 
         return {
-            num_sub: partial(record, num_sub, part_ps, slot_range, row_range)
-            for (num_sub, _), part_ps, slot_range, row_range in zip(parts, part_pairs, slots, rows)
+            num_sub: partial(record, num_sub, part_ps, part_slots, row_range)
+            for (num_sub, _), part_ps, part_slots, row_range in zip(parts, part_pairs, slots, rows)
         }
 
     def _record_substep_statistics(self, objects: list[int], result: SubstepResult, ps: _PairSet, pairs: PairSet,
@@ -1116,15 +1151,17 @@ def _concat_pair_sets(sets: list[_PairSet]) -> _PairSet:
     return _PairSet(**values)
 
 
-def _pair_rows(pairs: PairSet, slot_range: tuple[int, int], row_range: tuple[int, int]) -> PairSet:
-    """Rows ``row_range`` of a solve's pairs whose objects are the solve slots ``slot_range``, with the slots
-    counted from the range's start (a frozen side j stays ``FROZEN``)."""
+def _pair_rows(pairs: PairSet, slots: torch.Tensor, num_slots: int, row_range: tuple[int, int]) -> PairSet:
+    """Rows ``row_range`` of a solve's pairs (``num_slots`` solve slots) whose objects are the solve slots
+    ``slots``, their objects numbered by position in ``slots`` (a frozen side j stays ``FROZEN``)."""
     lo, hi = row_range
+    local = torch.full((num_slots,), -1, dtype=torch.int64)
+    local[slots] = torch.arange(len(slots))
     obj_j = pairs.obj_j[lo:hi]
     return PairSet(
-        obj_i=pairs.obj_i[lo:hi] - slot_range[0],
+        obj_i=local[pairs.obj_i[lo:hi]],
         sph_i=pairs.sph_i[lo:hi],
-        obj_j=torch.where(obj_j >= 0, obj_j - slot_range[0], obj_j),
+        obj_j=torch.where(obj_j >= 0, local[obj_j.clamp(min=0)], obj_j),
         sph_j=pairs.sph_j[lo:hi],
         frozen_x_j=pairs.frozen_x_j[lo:hi],
         stiffness_n_m=pairs.stiffness_n_m[lo:hi],

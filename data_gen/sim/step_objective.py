@@ -70,22 +70,43 @@ class SolveWorkspace:
                                         model.mu_pa[idx], model.lam_pa[idx], model.spd_tolerance_pa[idx])  # fmt: skip
                 self.elastic_groups.append((idx, cub_c, points))
         n_isl, size = layout.num_islands, layout.island_size
-        # every object one affine handle, islands small enough for one thread's envelope Cholesky, matrices
-        # small enough to keep twice more
         dofs = torch.zeros(n_isl, dtype=torch.int64).index_add_(0, layout.island, 12 * model.num_handles)
         self.padding = (torch.arange(size)[None, :] >= dofs[:, None]).to(DTYPE)  # (n_isl, N) unused entries
-        self.island_mass_kg = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)
-        radii = torch.where(model.sphere_valid, model.sphere_radius_m, torch.tensor(float("nan"), dtype=DTYPE))
-        median = radii.nanmedian(dim=1).values
-        self.min_median_radius_m = torch.full((n_isl,), float("inf"), dtype=DTYPE).scatter_reduce(
-            0, layout.island, median, reduce="amin"
-        )
-        fits = 0 < size <= FUSED_MAX_ISLAND_DOFS and n_isl * size * size <= FUSED_MAX_MATRIX_ENTRIES
+        self.island_mass_kg, self.min_median_radius_m = island_constants(model, layout)
         self.fused = (
             FusedNewton(model, layout, self.contact, self.island_mass_kg, self.min_median_radius_m)
-            if bool(rigid.all()) and fits
+            if bool(rigid.all()) and fused_fits(layout)
             else None
         )
+
+
+def island_constants(model: Model, layout: DofLayout) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per island of ``layout``: its mass (kg) and the smallest median contact-sphere radius of its objects (m)."""
+    n_isl = layout.num_islands
+    mass = torch.zeros(n_isl, dtype=DTYPE).index_add_(0, layout.island, model.mass_kg)
+    radii = torch.where(model.sphere_valid, model.sphere_radius_m, torch.tensor(float("nan"), dtype=DTYPE))
+    median = radii.nanmedian(dim=1).values
+    radius = torch.full((n_isl,), float("inf"), dtype=DTYPE).scatter_reduce(0, layout.island, median, reduce="amin")
+    return mass, radius
+
+
+def fused_fits(layout: DofLayout) -> bool:
+    """Islands small enough for one thread's envelope Cholesky, matrices small enough to keep twice more."""
+    n_isl, size = layout.num_islands, layout.island_size
+    return 0 < size <= FUSED_MAX_ISLAND_DOFS and n_isl * size * size <= FUSED_MAX_MATRIX_ENTRIES
+
+
+def rigid_fused_workspace(model: Model, layout: DofLayout, scene: SceneDistance) -> FusedNewton | None:
+    """A :class:`FusedNewton` of one-handle objects with contact buffers of its own (no objective is built on
+    them: it serves :meth:`FusedNewton.solve_substeps` only, and :meth:`FusedNewton.relayout` regroups it), or
+    None when the islands do not fit (:func:`fused_fits`)."""
+    if not bool((model.num_handles == 1).all()) or not fused_fits(layout):
+        return None
+    contact = WarpContact(
+        scene.scene, 4 * model.num_handles, model.sphere_rest_m, model.sphere_b, model.sphere_radius_m,
+        layout.flat_index, layout.island_size, layout.num_islands,
+    )  # fmt: skip
+    return FusedNewton(model, layout, contact, *island_constants(model, layout))
 
 
 class StepObjective(Objective):

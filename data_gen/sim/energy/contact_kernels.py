@@ -469,8 +469,9 @@ class WarpContact:
         return len(inputs) - 2 - len(self._tail) + offset
 
     def _grow_pairs(self, count: int) -> None:
-        """Pair buffers for at least ``count`` pairs and a pair launch recorded over them."""
-        capacity = max(64, 1 << (count - 1).bit_length())
+        """Pair buffers for at least ``count`` pairs (and at least 4 x the old capacity: every growth rebinds the
+        buffers wherever they are read) and a pair launch recorded over them."""
+        capacity = max(64, 1 << (count - 1).bit_length(), 4 * self._pair_capacity)
         zeros, i32 = self._zeros, torch.int32
         ints = [torch.zeros(capacity, dtype=i32, device=self.torch_device) for _ in range(4)]
         vec = [zeros(capacity, 3) for _ in range(4)]  # frozen x_j, normal0, x0_i, x0_j
