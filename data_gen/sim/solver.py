@@ -135,6 +135,8 @@ class SimBody:
     static_force_n: torch.Tensor = field(init=False)  # (k,3) N from the scene (held while asleep)
     partner_strength_n: torch.Tensor = field(init=False)  # (k,) |force| of the dominant partner
     static_summary: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(init=False, default=None)
+    # the last contact_positions: (q tensor, its version, sphere centres); read-only for the callers
+    _positions_cache: tuple[torch.Tensor, int, torch.Tensor] | None = field(init=False, default=None, repr=False)
 
     def __post_init__(self) -> None:
         n = self.contact.num_points
@@ -155,8 +157,14 @@ class SimBody:
         return self.contact.radius_m
 
     def contact_positions(self, q: torch.Tensor) -> torch.Tensor:
-        """(k,3) world sphere centres, m, of reduced coordinates q (this body's entry of a State)."""
-        return self.contact.positions(q)
+        """(k,3) world sphere centres, m, of reduced coordinates q (this body's entry of a State); kept while
+        ``q`` is the same tensor, unmodified (the step, its islands and the recorder ask again). Read-only."""
+        cached = self._positions_cache
+        if cached is not None and cached[0] is q and cached[1] == q._version:
+            return cached[2]
+        x = self.contact.positions(q)
+        self._positions_cache = (q, q._version, x)
+        return x
 
     def cubature_contact(self) -> tuple[torch.Tensor, torch.Tensor]:
         """This step's contact force (n,3) N and dominant partner (n,) per cubature point."""
