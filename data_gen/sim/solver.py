@@ -310,6 +310,7 @@ class ImplicitEulerSolver:
         self._groups: OrderedDict[tuple, _GroupSetup] = OrderedDict()
         self._groups_bytes = 0
         self._rigid_workspaces: OrderedDict[tuple[int, ...], list] = OrderedDict()  # [FusedNewton, its layout]
+        self._candidate_cache: tuple[tuple, np.ndarray] | None = None  # see _step_candidates
         self._groups_max_bytes = _GROUP_CACHE_MODELS * _model_bytes(self.model)
         self._pair_table_cache: tuple[tuple[float, bytes], tuple[np.ndarray, np.ndarray]] | None = None
         # per object: (qdot tensor, its version, sphere velocities (n, 3) m/s, fastest speed m/s)
@@ -356,11 +357,9 @@ class ImplicitEulerSolver:
         """
         stats = StepStats()
         self.h = self.dt
-        t0 = time.perf_counter()
         positions = self._contact_positions()
         speeds = [None if asleep else self._max_speed(k) for k, asleep in enumerate(self.state.asleep)]
-        pairs = self.broad_phase.candidates(positions, self._sphere_velocity_list(), self.h)
-        self.timings["broad_phase"] += time.perf_counter() - t0
+        pairs = self._step_candidates(positions)  # (its search counts as broad phase time)
         object_pairs = self.broad_phase.object_pairs(pairs)
         self._wake(object_pairs, speeds)  # changes the sleep flags the islands are built from
         contacts = self.broad_phase.contacts(pairs, object_pairs, self.state.asleep)
@@ -497,7 +496,8 @@ class ImplicitEulerSolver:
         return stats
 
     def energies(self) -> dict[str, float]:
-        """Kinetic, elastic, contact and gravity potential energy (J) of the current state."""
+        """Kinetic, elastic, contact and gravity potential energy (J) of the current state (its pair search is
+        the next step's broad phase, :meth:`_step_candidates`)."""
         state = self.state
         kin = sum(b.model.kinetic_energy(qdot) for b, qdot in zip(self.bodies, state.qdot))
         ela = sum(self._elastic_energies_j().tolist())
@@ -514,7 +514,13 @@ class ImplicitEulerSolver:
             )
             for part in energy.split([b.contact.num_points for b in self.bodies]):  # loop over objects
                 con += float(part.sum())
-        pairs = self.broad_phase.candidates(positions, None, self.h)
+        # pairs in contact: among the next step's candidates (a superset; the next step reuses them)
+        pairs = self._step_candidates(positions)
+        if len(pairs):
+            x_np = torch.cat(positions).numpy()
+            d = x_np[pairs[:, 0]] - x_np[pairs[:, 1]]
+            radii = self.broad_phase.radii_all.numpy()
+            pairs = pairs[np.sqrt((d * d).sum(1)) < radii[pairs[:, 0]] + radii[pairs[:, 1]]]
         if len(pairs):
             point_object, radii_all = self.broad_phase.point_object, self.broad_phase.radii_all
             oi, oj = point_object[pairs[:, 0]], point_object[pairs[:, 1]]
@@ -525,6 +531,22 @@ class ImplicitEulerSolver:
         return {"kinetic": kin, "elastic": ela, "contact": con, "gravity": grav}
 
     # ------------------------------------------------------------------ sphere positions, waking, sleep
+    def _step_candidates(self, positions: list[torch.Tensor]) -> np.ndarray:
+        """The broad phase's candidate pairs of a step of ``dt`` from the current state (sphere centres
+        ``positions``, velocities at the current rates, sleep flags); kept while the states, rates and flags are
+        the same (the energies of a recorded frame ask first, the step after it reuses them)."""
+        state = self.state
+        key = (list(state.q), [q._version for q in state.q], list(state.qdot), [v._version for v in state.qdot],
+               state.asleep.tobytes(), self.dt)  # fmt: skip (the tensors themselves: compared with `is`)
+        cached = self._candidate_cache
+        if cached is not None and _same_state_key(cached[0], key):
+            return cached[1]
+        t0 = time.perf_counter()
+        pairs = self.broad_phase.candidates(positions, self._sphere_velocity_list(), self.dt)
+        self.timings["broad_phase"] += time.perf_counter() - t0
+        self._candidate_cache = (key, pairs)
+        return pairs
+
     def _elastic_energies_j(self) -> torch.Tensor:
         """(n,) elastic energy of each object at the current state, J: one batched evaluation over the
         solver's model (a one-handle object's uniform F on its single cubature point of the whole volume)."""
@@ -1147,6 +1169,15 @@ class ImplicitEulerSolver:
             b.contact_force_n = torch.from_numpy(f_o)
             b.partner_strength_n = torch.from_numpy(s_o)
             b.contact_partner = torch.from_numpy(p_o)
+
+
+def _same_state_key(a: tuple, b: tuple) -> bool:
+    """Whether two :meth:`ImplicitEulerSolver._step_candidates` keys name the same state: the same tensors
+    (identity: the cache keeps them alive, so no new tensor can take their place) at the same versions."""
+    return (
+        len(a[0]) == len(b[0]) and all(x is y for x, y in zip(a[0], b[0])) and a[1] == b[1]
+        and all(x is y for x, y in zip(a[2], b[2])) and a[3] == b[3] and a[4] == b[4] and a[5] == b[5]
+    )  # fmt: skip
 
 
 def _concat_pair_sets(sets: list[_PairSet]) -> _PairSet:

@@ -308,3 +308,42 @@ def test_islands_of_different_substeps_in_one_launch_record_what_one_launch_per_
         assert np.array_equal(merged.energies_j[key], separate.energies_j[key]), key
     assert merged.info.counters == separate.info.counters
     assert merged.info.newton_iterations == separate.info.newton_iterations
+
+
+def test_recorded_energies_and_the_next_step_share_one_broad_phase_search(monkeypatch):
+    """The energies of a recorded frame take their contact pairs from the next step's broad-phase candidates
+    (a superset, filtered to the pairs in contact) and that step reuses them: one pair search per step (and one
+    for the initial frame's forces), and every recorded array, event and energy equals a run that searches
+    again each time (to round-off in the contact energy, whose sum now skips the zero terms)."""
+    from dataclasses import fields
+
+    import data_gen.sim.solver as solver_module
+    from data_gen.sim.contacts import BroadPhase
+    from tests.sim.test_sim_fused_newton import _stack
+
+    calls = {"n": 0}
+    search = BroadPhase.candidates
+
+    def counted(self, *args, **kwargs):
+        calls["n"] += 1
+        return search(self, *args, **kwargs)
+
+    monkeypatch.setattr(BroadPhase, "candidates", counted)
+    shared = _stack(True, frames=12, throw=True)
+    shared_calls = calls["n"]
+    calls["n"] = 0
+    monkeypatch.setattr(solver_module, "_same_state_key", lambda a, b: False)
+    again = _stack(True, frames=12, throw=True)
+    # the initial frame's forces, 11 frames of 2 steps (draft) after the first, and the last frame's energies
+    # (for a step never taken); searching again each time adds one search per recorded frame
+    assert shared_calls == 1 + 22 + 1 and calls["n"] == 1 + 22 + 12, (shared_calls, calls["n"])
+    for a, b in zip(shared.objects, again.objects, strict=True):
+        for f in fields(a):
+            if isinstance(getattr(a, f.name), np.ndarray):
+                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+    assert len(shared.collisions) == len(again.collisions) > 0
+    for key in ("kinetic", "elastic", "gravity"):
+        assert np.array_equal(shared.energies_j[key], again.energies_j[key]), key
+    contact = again.energies_j["contact"]
+    assert contact.max() > 0
+    np.testing.assert_allclose(shared.energies_j["contact"], contact, rtol=1e-12, atol=1e-15 * contact.max())
