@@ -536,8 +536,9 @@ class ImplicitEulerSolver:
         ``positions``, velocities at the current rates, sleep flags); kept while the states, rates and flags are
         the same (the energies of a recorded frame ask first, the step after it reuses them)."""
         state = self.state
+        # the tensors themselves (compared with `is`: kept alive here, no new tensor can take their place)
         key = (list(state.q), [q._version for q in state.q], list(state.qdot), [v._version for v in state.qdot],
-               state.asleep.tobytes(), self.dt)  # fmt: skip (the tensors themselves: compared with `is`)
+               state.asleep.tobytes(), self.dt)  # fmt: skip
         cached = self._candidate_cache
         if cached is not None and _same_state_key(cached[0], key):
             return cached[1]
