@@ -850,13 +850,9 @@ class ImplicitEulerSolver:
             self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps
         )
         h_island = [self.dt / num_sub for num_sub, group in parts for _ in group]
-        if len(parts) == 1:
-            h = h_island[0]
-            scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h * h)
-        else:
-            h_of = {k: self.dt / num_sub for num_sub, group in parts for island in group for k in island}
-            h_object = torch.tensor([h_of[k] for k in objects], dtype=DTYPE)
-            scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h_object * h_object)
+        h_of = {k: self.dt / num_sub for num_sub, group in parts for island in group for k in island}
+        h_object = torch.tensor([h_of[k] for k in objects], dtype=DTYPE)  # each object's sub-step, s
+        scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h_object * h_object)
         result = fused.solve_substeps(
             tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
             scene_k, [self.preset.friction_smoothing_m_s * h for h in h_island], pairs, ps.mu,
