@@ -121,12 +121,15 @@ class StepData:
     tm_pred: wp.array3d(dtype=wp.float64)  # (n, 3, K)
     tm_start: wp.array3d(dtype=wp.float64)  # (n, 3, K) the states at the start of the step
     margin: wp.array2d(dtype=wp.float64)  # (n, S) scratch: start distance to the scene minus radius, m
+    pair_gap: wp.array(dtype=wp.float64)  # (pairs,) sub-step start gap (centre distance - radius sum), m; -1 outside
+    moved: wp.array(dtype=wp.float64)  # (n,) scratch: |Tm - Tm_n|_F of the state being evaluated
     gravity: wp.vec3d  # m/s^2
     h2: wp.array(dtype=wp.float64)  # (n_isl,) each island's (sub)step squared, s^2
     smoothing_m: wp.array(dtype=wp.float64)  # (n,) friction smoothing of each object's (sub)step, m
     stiffness: wp.array2d(dtype=wp.float64)  # (n, S) N/m, 0 on padding
     friction_scale: wp.array2d(dtype=wp.float64)  # (n, S) mu lam, N
     start_x: wp.array2d(dtype=wp.vec3d)
+    start_v: wp.array2d(dtype=wp.vec3d)  # (n, S) scratch of sub-steps: sphere velocities at their start, m/s
     start_normal: wp.array2d(dtype=wp.vec3d)
     num_pairs: int
     pair_start: wp.array(dtype=wp.int32)  # (n_isl + 1,) island i's pairs: pair_order[start[i]:start[i+1]]
@@ -273,6 +276,24 @@ def _pair_at(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), p: int)
 
 
 @wp.func
+def _pair_out_of_reach(bd: Bodies, st: StepData, p: int):
+    """Whether candidate pair p cannot touch at the state being evaluated (``st.moved`` of its objects set):
+    its start gap exceeds how far its spheres can have closed in since the start, ``|Tm - Tm_n|_F |b|`` each
+    (a frozen side j does not move), so :func:`pair_terms` would return nothing. A pair with a frozen friction
+    force touched at the start (gap < 0) and is always evaluated, as is every pair outside sub-steps (gap -1).
+    A relative 1e-9 of the radius sum covers round-off."""
+    gap = st.pair_gap[p]
+    if gap <= _ZERO:
+        return False
+    oi = st.obj_i[p]
+    reach = st.moved[oi] * bd.b_norm[oi, st.sph_i[p]]
+    oj = st.obj_j[p]
+    if oj >= 0:
+        reach = reach + st.moved[oj] * bd.b_norm[oj, st.sph_j[p]]
+    return gap > reach + wp.float64(1e-9) * st.radius_sum[p]
+
+
+@wp.func
 def _affine_row(b: wp.array3d(dtype=wp.float64), o: int, s: int):
     """The four basis values of sphere (o, s) of a one-handle object (its ``[x0; 1]`` weights)."""
     return wp.vec4d(b[o, s, 0], b[o, s, 1], b[o, s, 2], b[o, s, 3])
@@ -395,6 +416,7 @@ def _evaluate(
                                     hess[base + fc] = hess[base + fc] + w * k_v
         # scene contact + friction of every sphere that may touch the scene
         moved = _motion_bound(bd, st, tm, o, cols)
+        st.moved[o] = moved
         for s in range(bd.radius.shape[1]):
             if st.margin[o, s] > moved * bd.b_norm[o, s]:
                 continue
@@ -411,9 +433,12 @@ def _evaluate(
                     else:
                         add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
                         add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, kp, h2 * h)
-    # pair contact + friction of the island's candidate pairs (side i on one of its objects)
+    # pair contact + friction of the island's candidate pairs (side i on one of its objects) that may touch
     for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
-        active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, st.live_order[k])
+        p = st.live_order[k]
+        if _pair_out_of_reach(bd, st, p):
+            continue
+        active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, p)
         if active != 0:
             value = value + h2 * e
             if derivatives != 0:
@@ -730,6 +755,7 @@ def _final_forces(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, o
         o = bd.island_objects[slot]
         cols = bd.columns[o]
         moved = _motion_bound(bd, st, tm, o, cols)
+        st.moved[o] = moved
         for s in range(bd.radius.shape[1]):
             sphere_x[o, s] = sphere_position(tm, bd.rest, bd.b, o, s, cols)
             scene_force[o, s] = zero
@@ -744,6 +770,8 @@ def _final_forces(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, o
         pair_normal[st.pair_order[k]] = zero
     for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
         p = st.live_order[k]
+        if _pair_out_of_reach(bd, st, p):
+            continue
         active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, p)
         if active != 0:
             pair_force[p] = -g
@@ -810,23 +838,30 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             sdf, n = _scene_distance(sc, x)
             valid = wp.float64(ss.valid[o, s])
             depth = wp.max(bd.radius[o, s] - sdf, _ZERO) * valid
+            stiffness = k * valid
+            friction_scale = ss.friction[o] * (k * depth)
             st.start_x[o, s] = x
+            st.start_v[o, s] = sphere_velocity(ss.tmdot, bd.b, o, s, cols)
             st.start_normal[o, s] = n
-            st.stiffness[o, s] = k * valid
-            st.friction_scale[o, s] = ss.friction[o] * (k * depth)
+            st.stiffness[o, s] = stiffness
+            st.friction_scale[o, s] = friction_scale
+            margin = wp.float64(-1.0)  # as _scene_margins, from the same distance
+            if stiffness != _ZERO and friction_scale <= _ZERO:
+                margin = sdf - bd.radius[o, s]
+            st.margin[o, s] = margin
     live = int(0)
     reach_g = wp.float64(2.0) * ss.gravity_norm * h * h + ss.pair_margin_m
-    for m in range(st.pair_start[isl], st.pair_start[isl + 1]):
-        p = st.pair_order[m]
+    for m in range(st.pair_start[isl], st.pair_start[isl + 1]):  # each sphere's start position and velocity
+        p = st.pair_order[m]  # computed once above, read here
         oi = st.obj_i[p]
-        xi = sphere_position(ss.tm_now, bd.rest, bd.b, oi, st.sph_i[p], bd.columns[oi])
-        vi = sphere_velocity(ss.tmdot, bd.b, oi, st.sph_i[p], bd.columns[oi])
+        xi = st.start_x[oi, st.sph_i[p]]
+        vi = st.start_v[oi, st.sph_i[p]]
         xj = st.frozen_x_j[p]
         vj = wp.vec3d(_ZERO, _ZERO, _ZERO)
         oj = st.obj_j[p]
         if oj >= 0:
-            xj = sphere_position(ss.tm_now, bd.rest, bd.b, oj, st.sph_j[p], bd.columns[oj])
-            vj = sphere_velocity(ss.tmdot, bd.b, oj, st.sph_j[p], bd.columns[oj])
+            xj = st.start_x[oj, st.sph_j[p]]
+            vj = st.start_v[oj, st.sph_j[p]]
         delta = xi - xj
         dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
         if dist - st.radius_sum[p] >= wp.float64(1.5) * h * wp.length(vi - vj) + reach_g:
@@ -841,6 +876,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
         if lam > _ZERO:
             mu_lam = ss.pair_mu[p] * lam
         st.pair_friction_scale[p] = mu_lam
+        st.pair_gap[p] = dist - st.radius_sum[p]  # < 0 for a pair with a frozen friction force (lam > 0)
     st.live_count[isl] = live
 
 
@@ -863,8 +899,7 @@ def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Subst
             for r in range(3):
                 for a in range(bd.columns[o]):
                     wk.q[bd.flat_index[o, r * kp + a]] = st.tm_pred[o, r, a]
-        _scene_margins(bd, sc, st, isl)
-        _newton(bd, sc, st, wk, isl, thr, trust, ss.iterations, ss.line_search_steps)
+        _newton(bd, sc, st, wk, isl, thr, trust, ss.iterations, ss.line_search_steps)  # (margins: _substep_start)
         for k in range(NUM_STATS):
             ss.stats[j, isl, k] = wk.stats[isl, k]
         if wk.stats[isl, STATUS] != SOLVED:
@@ -974,6 +1009,8 @@ class FusedNewton:
         self.tm_pred = torch.zeros_like(self.tm)
         self.tm_start = torch.zeros_like(self.tm)
         self.margin = torch.zeros_like(model.sphere_radius_m)
+        self.moved = torch.zeros(n, **like)  # the kernels' per-object motion bound (scratch)
+        self.start_v = torch.zeros(*model.sphere_radius_m.shape, 3, **like)  # sub-step sphere velocities (scratch)
         # (n, 2) columns each object's rows hold in hess (the kernels keep it: hess is cleared only there)
         self.band = torch.zeros(n, 2, dtype=i32, device=model.mass_kg.device)
         # forces() output: one row of ForceOutputs (the pair rows are bound with the pair buffers)
@@ -988,6 +1025,8 @@ class FusedNewton:
         self._step = StepData()
         self.smoothing = torch.zeros(n, **like)  # friction smoothing (m) per object
         self._step.smoothing_m = _wp(self.smoothing)
+        self._step.moved = _wp(self.moved)
+        self._step.start_v = _wp(self.start_v, wp.vec3d)
         self._pair_capacity = -1
         self._substeps: Substeps | None = None
         self.relayout(layout, island_mass_kg, min_median_radius_m)
@@ -1056,7 +1095,9 @@ class FusedNewton:
             raise ValueError("the objective's contact buffers are not this FusedNewton's (another workspace)")
         self.tm_pred.copy_(objective.tm_pred)
         self.tm_start.copy_(objective.tm_n)
-        return self._bind_step(objective.gravity, objective.h2)
+        st = self._bind_step(objective.gravity, objective.h2)
+        self.pair_gap.fill_(-1.0)  # every pair evaluated (no start gaps: only sub-steps compute them)
+        return st
 
     def _bind_step(self, gravity_m_s2: torch.Tensor, h2: float) -> StepData:
         """:class:`StepData` over this workspace's buffers, with gravity, h^2 and the contact data of the last
@@ -1083,6 +1124,8 @@ class FusedNewton:
             self.live_order = torch.zeros_like(c_ints[0])
             self._pair_order_wp, self._live_order_wp = st.pair_order, _wp(self.live_order)
             self.pair_mu = torch.zeros(len(c_ints[0]), dtype=self.q.dtype, device=self.q.device)
+            self.pair_gap = torch.full_like(self.pair_mu, -1.0)  # -1: always evaluated
+            st.pair_gap = _wp(self.pair_gap)
             self._substeps = None  # (re)bound to the new pair buffers on next use
         g = gravity_m_s2.tolist()
         st.gravity = wp.vec3d(g[0], g[1], g[2])
