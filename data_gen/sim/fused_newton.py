@@ -44,6 +44,7 @@ from data_gen.sim.energy.contact_kernels import (
 )
 from data_gen.sim.energy.elastic_kernel import (
     deformation_gradient,
+    mat99d,
     neo_hookean_point,
     not_positive_definite,
     projected_neo_hookean_hessian,
@@ -97,6 +98,8 @@ class Bodies:
     flat_index: wp.array2d(dtype=wp.int32)  # (n, 3K) position in the flat island vectors
     island_size: int
     mass_matrix: wp.array3d(dtype=wp.float64)  # (n, 3K, 3K)
+    mass_separable: int  # 1: every mass matrix is kron(I3, M_b) (its blocks coupling rows r != s are zero)
+    identity_c: wp.array(dtype=wp.int32)  # (n,) 1: one cubature point with C = [I; 0] (a one-handle object)
     mass_b_sum: wp.array2d(dtype=wp.float64)  # (n, K) kg
     cub_c: wp.array4d(dtype=wp.float64)  # (n, P, K, 3)
     cub_volume: wp.array2d(dtype=wp.float64)  # (n, P) m^3
@@ -213,9 +216,10 @@ def _step_limits(bd: Bodies, st: StepData, isl: int, tolerance: wp.float64, grav
         o = bd.island_objects[slot]
         cols = bd.columns[o]
         for r in range(3):
+            c_lo, c_hi = _coupled_rows(bd, r)
             for a in range(cols):
                 m_d = _ZERO
-                for c_r in range(3):
+                for c_r in range(c_lo, c_hi):
                     for c in range(cols):
                         m_d = m_d + bd.mass_matrix[o, r * kp + a, c_r * kp + c] * (st.tm_pred[o, c_r, c] - st.tm_start[o, c_r, c])
                 mass2 = mass2 + (st.tm_pred[o, r, a] - st.tm_start[o, r, a]) * m_d
@@ -294,6 +298,34 @@ def _pair_out_of_reach(bd: Bodies, st: StepData, p: int):
 
 
 @wp.func
+def _coupled_rows(bd: Bodies, r: int):
+    """The rows s in [lo, hi) of Tm whose mass-matrix block couples to row r: r alone when the mass matrices
+    are ``kron(I3, M_b)`` (the other blocks hold exact zeros: skipping them changes no sum), else all three."""
+    if bd.mass_separable != 0:
+        return r, r + 1
+    return 0, 3
+
+
+@wp.func
+def _add_affine_elastic(grad: wp.array(dtype=wp.float64), hess: wp.array(dtype=wp.float64), n_size: int, isl: int,
+                        first: int, w: wp.float64, piola: wp.mat33d, h9: mat99d):  # fmt: skip
+    """The elastic gradient ``w P C^T`` and Hessian ``w C^T H C`` of a one-handle object whose single cubature
+    point has ``C = [I; 0]`` (unknowns contiguous from ``first``): entry (r, a) of the gradient is ``w P[r, a]``
+    and entry ((r, a), (s, c)) of the Hessian ``w H[3 r + a, 3 s + c]`` for a, c < 3, the fourth column's
+    entries are zero. The general loops' sums hold one non-zero term each (the others are exact zeros), so
+    this adds the same values."""
+    for r in range(3):
+        for a in range(3):
+            fr = first + 4 * r + a
+            grad[fr] = grad[fr] + w * piola[r, a]
+            row = fr * n_size - isl * n_size  # as in _evaluate: unknowns are numbered across islands
+            for s in range(3):
+                for c in range(3):
+                    fc = first + 4 * s + c
+                    hess[row + fc] = hess[row + fc] + w * h9[r * 3 + a, s * 3 + c]
+
+
+@wp.func
 def _affine_row(b: wp.array3d(dtype=wp.float64), o: int, s: int):
     """The four basis values of sphere (o, s) of a one-handle object (its ``[x0; 1]`` weights)."""
     return wp.vec4d(b[o, s, 0], b[o, s, 1], b[o, s, 2], b[o, s, 3])
@@ -368,10 +400,11 @@ def _evaluate(
         cols = bd.columns[o]
         # inertia 1/2 d^T M d with d = tm - tm_pred, gravity -g . Tm sum_p m_p b_p (times h^2)
         for r in range(3):
+            s_lo, s_hi = _coupled_rows(bd, r)
             for a in range(cols):
                 row = r * kp + a
                 m_d = _ZERO
-                for s in range(3):
+                for s in range(s_lo, s_hi):
                     for c in range(cols):
                         col = s * kp + c
                         m_d = m_d + bd.mass_matrix[o, row, col] * (tm[o, s, c] - st.tm_pred[o, s, c])
@@ -381,7 +414,7 @@ def _evaluate(
                     fr = bd.flat_index[o, row]
                     grad[fr] = grad[fr] + m_d - h2 * st.gravity[r] * bd.mass_b_sum[o, a]
                     base = fr * n_size - isl * n_size
-                    for s in range(3):
+                    for s in range(s_lo, s_hi):
                         for c in range(cols):
                             fc = bd.flat_index[o, s * kp + c]
                             hess[base + fc] = hess[base + fc] + bd.mass_matrix[o, row, s * kp + c]
@@ -397,6 +430,9 @@ def _evaluate(
                         flagged = int(1)
                         h9 = projected_neo_hookean_hessian(f, bd.mu_pa[o], bd.lam_pa[o])
                     w = h2 * v
+                    if bd.identity_c[o] != 0:  # C = [I; 0]: the sums below reduce to P and H themselves
+                        _add_affine_elastic(grad, hess, n_size, isl, bd.flat_index[o, 0], w, piola, h9)
+                        continue
                     for r in range(3):
                         for a in range(cols):
                             fr = bd.flat_index[o, r * kp + a]
@@ -562,10 +598,11 @@ def _update_norms(bd: Bodies, dq: wp.array(dtype=wp.float64), isl: int):
         cols = bd.columns[o]
         f = bd.flat_index[o, 0]
         for r in range(3):
+            s_lo, s_hi = _coupled_rows(bd, r)
             for a in range(cols):
                 row = r * kp + a
                 m_d = _ZERO
-                for s in range(3):
+                for s in range(s_lo, s_hi):
                     for c in range(cols):
                         fc = f + 4 * s + c  # one handle: its 12 unknowns are contiguous
                         if cols != 4:
@@ -956,6 +993,28 @@ class SubstepResult:
         )  # fmt: skip
 
 
+def _identity_c(model: Model) -> torch.Tensor:
+    """(n,) bool: objects whose elastic energy is one cubature point with ``C = [I; 0]`` exactly (one handle:
+    ``F = I + Tm[:, :3]``), assembled by :func:`_add_affine_elastic`."""
+    n, p, k, _ = model.cub_c.shape
+    if k < 4:
+        return torch.zeros(n, dtype=torch.bool)
+    c = torch.zeros(k, 3, dtype=model.cub_c.dtype, device=model.cub_c.device)
+    c[:3] = torch.eye(3, dtype=c.dtype, device=c.device)
+    one_point = (model.cub_volume_m3[:, 1:] == 0).all(1) if p > 1 else torch.ones(n, dtype=torch.bool)
+    return (model.num_handles == 1) & one_point & (model.cub_c[:, 0] == c).all(2).all(1)
+
+
+def _mass_separable(model: Model) -> bool:
+    """Whether every mass matrix (n, 3K, 3K) is ``kron(I3, M_b)``: its blocks coupling rows r != s of Tm are
+    exact zeros (what :func:`_coupled_rows` skips)."""
+    n, size, _ = model.mass_matrix.shape
+    k = size // 3
+    blocks = model.mass_matrix.reshape(n, 3, k, 3, k)
+    off = ~torch.eye(3, dtype=torch.bool, device=blocks.device)[None, :, None, :, None].expand_as(blocks)
+    return bool((blocks[off] == 0).all())
+
+
 def _wp(t: torch.Tensor, dtype=None) -> wp.array:
     return wp.from_torch(t.contiguous(), dtype=dtype)
 
@@ -983,12 +1042,14 @@ class FusedNewton:
             # stable sort: each object's hull spheres first, in index order
             "extreme_index": torch.sort((~model.sphere_extreme).to(i32), dim=1, stable=True).indices.to(i32),
         }  # fmt: skip
+        self._keep["identity_c"] = _identity_c(model).to(i32)
         substep_constants = {"friction": model.friction, "valid": model.sphere_valid.to(i32)}
         self._keep = {key: value.contiguous() for key, value in self._keep.items()}
         bd = Bodies()
         for key, value in self._keep.items():
             setattr(bd, key, _wp(value, wp.vec3d if key == "rest" else None))
         self._keep.update({key: value.contiguous() for key, value in substep_constants.items()})
+        bd.mass_separable = int(_mass_separable(model))
         self.bodies = bd
         scene = contact.scene
         sc = SceneArgs()
