@@ -884,11 +884,9 @@ class ImplicitEulerSolver:
             part = _pair_rows(pairs, part_slots, len(objects), row_range)
             part_objects = [objects[slot] for slot in part_slots.tolist()]  # island by island
             valid = model.sphere_valid[part_slots]
-            if self._record_spheres:  # each sub-step's forces, in order (impulses, peaks, sleeping partners)
-                for forces in sub.forces:
-                    self._record_group_forces(part_objects, forces, part_ps, part, valid, h, stats, supported)
-            else:
-                self._record_substep_statistics(part_objects, sub, part_ps, part, valid, h, stats, supported)
+            self._record_substep_statistics(part_objects, sub, part_ps, part, valid, h, stats, supported)
+            if self._record_spheres:
+                self._record_substep_sphere_forces(part_objects, sub, part_ps, part, valid)
 
         return {
             num_sub: partial(record, num_sub, part_ps, part_slots, row_range)
@@ -954,6 +952,37 @@ class ImplicitEulerSolver:
             b.static_summary = (
                 (total_np[last, slot], pos_np[last, slot], nrm_np[last, slot]) if touching[last, slot] else None
             )
+
+    def _record_substep_sphere_forces(self, objects: list[int], result: SubstepResult, ps: _PairSet,
+                                      pairs: PairSet, sphere_valid: torch.Tensor) -> None:  # fmt: skip
+        """The per-sphere records (contact force, partner and its strength) that one :meth:`_record_group_forces`
+        call per sub-step of ``result`` leaves (the statistics: :meth:`_record_substep_statistics`): each call
+        starts the records of ``objects`` anew, so theirs are the last sub-step's; a sleeping partner collects
+        the pair forces of every sub-step, in order, so earlier sub-steps add only their pairs with a sleeping
+        side j."""
+        last = len(result.forces) - 1
+        asleep_j = torch.from_numpy(self.state.asleep[ps.obj_j]) if pairs.num_pairs else None
+        for j, forces in enumerate(result.forces):
+            if j == last:  # SimBody.reset_step_forces from this sub-step's scene forces
+                force = forces.scene_force_n * sphere_valid[:, :, None]
+                mag = force.norm(dim=2)  # (n, S)
+                partner = torch.where(mag > 0, 0, NO_PARTNER)
+                for slot, o in enumerate(objects):  # bookkeeping only
+                    b = self.bodies[o]
+                    k = b.contact.num_points
+                    b.contact_force_n = force[slot, :k]
+                    b.partner_strength_n = mag[slot, :k]
+                    b.contact_partner = partner[slot, :k]
+            if asleep_j is None:
+                continue
+            live = (forces.pair_force_i_n != 0).any(1)
+            if j < last:
+                live = live & asleep_j
+            rows = torch.nonzero(live)[:, 0]
+            if len(rows):
+                r = rows.numpy()
+                self._accumulate_pair_forces(ps.obj_i[r], ps.loc_i[r], ps.obj_j[r], ps.loc_j[r], None, None,
+                                             forces.pair_force_i_n[rows], None, None, None)  # fmt: skip
 
     def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, stats: StepStats,
                                supported: np.ndarray) -> None:
@@ -1069,12 +1098,12 @@ class ImplicitEulerSolver:
         loc_i: np.ndarray,
         obj_j: np.ndarray,
         loc_j: np.ndarray,
-        xi: torch.Tensor,
-        xj: torch.Tensor,
+        xi: torch.Tensor | None,
+        xj: torch.Tensor | None,
         f_i: torch.Tensor,
-        normal_ji: torch.Tensor,
-        stats: StepStats,
-        supported: np.ndarray,
+        normal_ji: torch.Tensor | None,
+        stats: StepStats | None,
+        supported: np.ndarray | None,
     ) -> None:
         """Add pair forces (N, on side i; side j gets the opposite) to per-point records and pair totals.
 
@@ -1084,7 +1113,7 @@ class ImplicitEulerSolver:
         object pair winning ties, and only if stronger than the contact it already has.  Each sphere's
         forces are added in the order of a loop over the object pairs, then their point pairs.  Per
         object pair the step statistics get the total force (on the smaller id), the force-weighted
-        position and the normal (from the smaller id's side)."""
+        position and the normal (from the smaller id's side). Without ``stats`` only the per-point records."""
         mag_t = f_i.norm(dim=1)  # (the partner strengths: the same norm as the scene forces')
         mag = mag_t.numpy()
         rows = np.flatnonzero(mag > 0)
@@ -1100,6 +1129,8 @@ class ImplicitEulerSolver:
         asleep = self.state.asleep
         if self._record_spheres:
             self._add_sphere_records(obj_a, obj_c, oi, oj, loc_i[rows], loc_j[rows], group, fa, m)
+        if stats is None:
+            return
         supported[obj_a] = True
         supported[obj_c[asleep[obj_c]]] = True
 
