@@ -119,6 +119,18 @@ def _candidate_pairs_kernel(
                         pairs[slot, 1] = j
 
 
+def _boxes_within_reach(lo: np.ndarray, hi: np.ndarray, reach: np.ndarray, margin_m: float) -> bool:
+    """Whether some two objects' bounding boxes (m,) x (3,) of their points, m, are closer on every axis than
+    their reaches (m,) m (largest radius + own margin of each) plus ``margin_m``: a pair of points passing the
+    search's test needs it (the gap between the boxes bounds their distance from below). A relative 1e-9
+    covers round-off."""
+    gap = np.maximum(lo[None, :, :] - hi[:, None, :], lo[:, None, :] - hi[None, :, :]).max(2)  # (m, m) m
+    limit = (reach[:, None] + reach[None, :] + margin_m) * (1.0 + 1e-9)
+    close = gap < limit
+    np.fill_diagonal(close, False)
+    return bool(close.any())
+
+
 @dataclass(frozen=True)
 class _ObjectTable:
     """What :class:`PairFinder` derives from the object ids and radii (reused while they stay the same).
@@ -211,6 +223,8 @@ class PairFinder:
         # the host arrays below stay alive until the launch has read them (on CPU they are not copied)
         lo_np, hi_np = objects.per_object(x, np.minimum), objects.per_object(x, np.maximum)  # bounding boxes
         reach = objects.per_object(objects.radii_m + extra, np.maximum)  # (m,) largest radius + margin, m
+        if not _boxes_within_reach(lo_np, hi_np, reach, margin_m):  # objects apart (in flight): no search
+            return np.zeros((0, 2), dtype=np.int64)
         pts = self._device_array(x, wp.vec3d)
         self.grid.build(pts, query_radius, groups=objects.dense)  # cells as wide as the largest query
         lo, hi = self._device_array(lo_np, wp.vec3d), self._device_array(hi_np, wp.vec3d)

@@ -53,6 +53,38 @@ def test_grouped_broad_phase_finds_exactly_the_close_pairs(ids_kind):
         )
 
 
+def test_broad_phase_of_objects_apart_skips_the_search_and_finds_exactly_the_close_pairs():
+    """Objects whose bounding boxes are farther apart than their reach find nothing without a hash-grid search;
+    moved together step by step (across the reach), the pairs equal the brute-force ones at every distance."""
+    rng = np.random.default_rng(5)
+    a = rng.normal(scale=0.03, size=(60, 3))
+    b = rng.normal(scale=0.03, size=(50, 3))
+    ids = np.r_[np.zeros(60, dtype=int), np.ones(50, dtype=int)]
+    radii = rng.uniform(0.002, 0.01, 110)
+    margins = rng.uniform(0.0, 0.02, 110)
+    finder = PairFinder()
+    builds = {"n": 0}
+    build = finder.grid.build
+
+    def counted(*args, **kwargs):
+        builds["n"] += 1
+        return build(*args, **kwargs)
+
+    finder.grid.build = counted
+    found_any = []
+    for offset in np.linspace(0.4, 0.05, 36):
+        points = np.r_[a, b + np.array([offset, 0.0, 0.0])]
+        before = builds["n"]
+        found = finder.find(points, ids, radii, 0.003, margins)
+        np.testing.assert_array_equal(found, brute_force_pairs(points, ids, radii, 0.003, margins))
+        gap = (b[:, 0] + offset).min() - a[:, 0].max()  # the boxes' gap along x (they overlap in y, z)
+        if gap >= (radii.max() + margins.max()) * 2 + 0.003 + 1e-6:
+            assert builds["n"] == before and len(found) == 0  # apart: no search
+        found_any.append(len(found) > 0)
+    assert found_any[0] is False and found_any[-1] is True  # the sweep crossed from apart to touching
+    assert builds["n"] > 0
+
+
 def test_broad_phase_of_one_object_is_empty():
     points = np.random.default_rng(0).normal(size=(20, 3))
     assert PairFinder().find(points, np.zeros(20, dtype=int), np.full(20, 0.5), 0.1).shape == (0, 2)
