@@ -254,12 +254,29 @@ def test_object_pairs_are_the_sorted_distinct_pairs_of_candidates():
     assert broad_phase.object_pairs(np.zeros((0, 2), dtype=np.int64)).shape == (0, 2)
 
 
+def _assert_same_results(a, b) -> None:
+    """Every recorded array, contact event (there are some) and energy of two simulation results equal, bit for
+    bit."""
+    from dataclasses import fields
+
+    for track_a, track_b in zip(a.objects, b.objects, strict=True):
+        for f in fields(track_a):
+            if isinstance(getattr(track_a, f.name), np.ndarray):
+                assert np.array_equal(getattr(track_a, f.name), getattr(track_b, f.name)), f.name
+    assert len(a.collisions) == len(b.collisions) > 0
+    for event_a, event_b in zip(a.collisions, b.collisions):
+        assert vars(event_a).keys() == vars(event_b).keys()
+        for key, value in vars(event_b).items():
+            assert np.array_equal(vars(event_a)[key], value), key
+    for key in b.energies_j:
+        assert np.array_equal(a.energies_j[key], b.energies_j[key]), key
+
+
 def test_steps_without_sphere_records_change_no_recorded_value(monkeypatch):
     """The simulator skips the per-sphere force records of steps between frames (nobody reads them): every
     recorded array (per-point contact forces and partners included), every contact event and the energies
     equal those of a run that keeps the records of every step, bit for bit. A thrown box hits a stack
     (pairs between awake objects), and the stack falls asleep (frozen scene forces, sleeping partners)."""
-    from dataclasses import fields
 
     from tests.sim.test_sim_fused_newton import _stack
 
@@ -269,18 +286,7 @@ def test_steps_without_sphere_records_change_no_recorded_value(monkeypatch):
     full = _stack(True, frames=45, throw=True)
     assert any(tr.asleep.any() for tr in full.objects)  # the records of sleepers were exercised
     assert any((tr.contact_partner > 0).any() for tr in full.objects)  # and object-object partners
-    for a, b in zip(lean.objects, full.objects, strict=True):
-        for f in fields(a):
-            if isinstance(getattr(a, f.name), np.ndarray):
-                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
-    assert len(lean.collisions) == len(full.collisions)
-    for e_lean, e_full in zip(lean.collisions, full.collisions):
-        assert vars(e_lean).keys() == vars(e_full).keys()
-        for key, value in vars(e_full).items():
-            assert np.array_equal(vars(e_lean)[key], value), key
-    assert len(full.collisions) > 0
-    for key in full.energies_j:
-        assert np.array_equal(lean.energies_j[key], full.energies_j[key]), key
+    _assert_same_results(lean, full)
 
 
 def test_islands_of_different_substeps_in_one_launch_record_what_one_launch_per_substep_count_records(monkeypatch):
@@ -288,7 +294,6 @@ def test_islands_of_different_substeps_in_one_launch_record_what_one_launch_per_
     sub-step. A thrown box next to a settling stack gives steps with islands of different sub-step counts
     in one launch; every state, recorded array, contact event and energy equals, bit for bit, a run that
     launches each sub-step count's islands on their own (as the solver did before), and so do the counters."""
-    from dataclasses import fields
 
     from data_gen.sim.material import Material
     from data_gen.sim.world import SimObjectSpec, Simulator
@@ -328,16 +333,7 @@ def test_islands_of_different_substeps_in_one_launch_record_what_one_launch_per_
 
     monkeypatch.setattr(ImplicitEulerSolver, "_solve_rigid_substeps", one_launch_per_count)
     separate = scene()
-    for a, b in zip(merged.objects, separate.objects, strict=True):
-        for f in fields(a):
-            if isinstance(getattr(a, f.name), np.ndarray):
-                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
-    assert len(merged.collisions) == len(separate.collisions) > 0
-    for e_merged, e_separate in zip(merged.collisions, separate.collisions):
-        for key, value in vars(e_separate).items():
-            assert np.array_equal(vars(e_merged)[key], value), key
-    for key in merged.energies_j:
-        assert np.array_equal(merged.energies_j[key], separate.energies_j[key]), key
+    _assert_same_results(merged, separate)
     assert merged.info.counters == separate.info.counters
     assert merged.info.newton_iterations == separate.info.newton_iterations
 
@@ -404,7 +400,6 @@ def test_a_recorded_fused_step_keeps_the_sphere_records_of_one_record_per_subste
     records (contact force, partner, partner strength) from the last sub-step, plus every sub-step's forces on a
     sleeping partner. Every recorded array, event and energy equals, bit for bit, a run that records each
     sub-step in turn (each record starting the island's objects anew, the sleeping partner collecting)."""
-    from dataclasses import fields
 
     seen = {"calls": 0, "sleeping_partner_forces": 0}
     batched = ImplicitEulerSolver._record_substep_sphere_forces
@@ -430,13 +425,4 @@ def test_a_recorded_fused_step_keeps_the_sphere_records_of_one_record_per_subste
     monkeypatch.setattr(ImplicitEulerSolver, "_record_substep_sphere_forces", every_substep)
     full = _stack_then_drop()
     assert any((tr.contact_partner > 0).any() for tr in full.objects)
-    for a, b in zip(lean.objects, full.objects, strict=True):
-        for f in fields(a):
-            if isinstance(getattr(a, f.name), np.ndarray):
-                assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
-    assert len(lean.collisions) == len(full.collisions) > 0
-    for e_lean, e_full in zip(lean.collisions, full.collisions):
-        for key, value in vars(e_full).items():
-            assert np.array_equal(vars(e_lean)[key], value), key
-    for key in full.energies_j:
-        assert np.array_equal(lean.energies_j[key], full.energies_j[key]), key
+    _assert_same_results(lean, full)
