@@ -255,7 +255,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "grad[fr] = grad[fr] + w * piola[a, r]",
            tests=("tests/sim/test_sim_fused_newton.py",)),
     Mutant("fused_identity_c_for_every_object", "data_gen/sim/fused_newton.py",
-           "return (model.num_handles == 1) & one_point & (model.cub_c[:, 0] == c).all(2).all(1)",
+           "return (handles == 1) & one_point & (model.cub_c[:, 0] == c).all(2).all(1)",
            "return torch.ones(n, dtype=torch.bool)",
            tests=("tests/sim/test_sim_fused_newton.py",)),
     Mutant("recorded_substeps_drop_sleeping_partner_forces", "data_gen/sim/solver.py",

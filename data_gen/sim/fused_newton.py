@@ -997,12 +997,14 @@ def _identity_c(model: Model) -> torch.Tensor:
     """(n,) bool: objects whose elastic energy is one cubature point with ``C = [I; 0]`` exactly (one handle:
     ``F = I + Tm[:, :3]``), assembled by :func:`_add_affine_elastic`."""
     n, p, k, _ = model.cub_c.shape
+    device = model.cub_c.device
     if k < 4:
-        return torch.zeros(n, dtype=torch.bool)
-    c = torch.zeros(k, 3, dtype=model.cub_c.dtype, device=model.cub_c.device)
-    c[:3] = torch.eye(3, dtype=c.dtype, device=c.device)
-    one_point = (model.cub_volume_m3[:, 1:] == 0).all(1) if p > 1 else torch.ones(n, dtype=torch.bool)
-    return (model.num_handles == 1) & one_point & (model.cub_c[:, 0] == c).all(2).all(1)
+        return torch.zeros(n, dtype=torch.bool, device=device)
+    c = torch.zeros(k, 3, dtype=model.cub_c.dtype, device=device)
+    c[:3] = torch.eye(3, dtype=c.dtype, device=device)
+    one_point = (model.cub_volume_m3[:, 1:] == 0).all(1) if p > 1 else torch.ones(n, dtype=torch.bool, device=device)
+    handles = model.num_handles.to(device)
+    return (handles == 1) & one_point & (model.cub_c[:, 0] == c).all(2).all(1)
 
 
 def _mass_separable(model: Model) -> bool:
