@@ -963,16 +963,9 @@ class ImplicitEulerSolver:
         last = len(result.forces) - 1
         asleep_j = torch.from_numpy(self.state.asleep[ps.obj_j]) if pairs.num_pairs else None
         for j, forces in enumerate(result.forces):
-            if j == last:  # SimBody.reset_step_forces from this sub-step's scene forces
+            if j == last:  # the records start from this sub-step's scene forces
                 force = forces.scene_force_n * sphere_valid[:, :, None]
-                mag = force.norm(dim=2)  # (n, S)
-                partner = torch.where(mag > 0, 0, NO_PARTNER)
-                for slot, o in enumerate(objects):  # bookkeeping only
-                    b = self.bodies[o]
-                    k = b.contact.num_points
-                    b.contact_force_n = force[slot, :k]
-                    b.partner_strength_n = mag[slot, :k]
-                    b.contact_partner = partner[slot, :k]
+                self._start_sphere_records(objects, force, force.norm(dim=2))
             if asleep_j is None:
                 continue
             live = (forces.pair_force_i_n != 0).any(1)
@@ -983,6 +976,17 @@ class ImplicitEulerSolver:
                 r = rows.numpy()
                 self._accumulate_pair_forces(ps.obj_i[r], ps.loc_i[r], ps.obj_j[r], ps.loc_j[r], None, None,
                                              forces.pair_force_i_n[rows], None, None, None)  # fmt: skip
+
+    def _start_sphere_records(self, objects: list[int], force: torch.Tensor, magnitude: torch.Tensor) -> None:
+        """:meth:`SimBody.reset_step_forces` of ``objects`` at once, from their scene forces (n, S, 3) N and
+        magnitudes (n, S) N (the records keep views of ``force``): partner the scene where a force acts."""
+        partner = torch.where(magnitude > 0, 0, NO_PARTNER)
+        for slot, o in enumerate(objects):  # bookkeeping only
+            b = self.bodies[o]
+            k = b.contact.num_points
+            b.contact_force_n = force[slot, :k]
+            b.partner_strength_n = magnitude[slot, :k]
+            b.contact_partner = partner[slot, :k]
 
     def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, stats: StepStats,
                                supported: np.ndarray) -> None:
@@ -1024,18 +1028,11 @@ class ImplicitEulerSolver:
         touching = (mag > 0).any(1).numpy()
         total_np, pos_np, nrm_np = total.numpy(), pos.numpy(), nrm.numpy()
         record = self._record_spheres
-        if record:  # SimBody.reset_step_forces for all objects at once: the step's forces start from the
-            # scene's, pair forces are added below
-            contact_force = force.clone()
-            partner = torch.where(mag > 0, 0, NO_PARTNER)
+        if record:  # the step's forces start from the scene's, pair forces are added below
+            self._start_sphere_records(objects, force.clone(), mag)
         for slot, o in enumerate(objects):  # once per (sub)step: bookkeeping only
             b = self.bodies[o]
-            k = b.contact.num_points
-            b.static_force_n = force[slot, :k]  # (kept by an object that falls asleep in this step)
-            if record:
-                b.contact_force_n = contact_force[slot, :k]
-                b.partner_strength_n = mag[slot, :k]
-                b.contact_partner = partner[slot, :k]
+            b.static_force_n = force[slot, : b.contact.num_points]  # (kept by an object that falls asleep now)
             if touching[slot]:
                 supported[o] = True
                 b.static_summary = (total_np[slot], pos_np[slot], nrm_np[slot])
