@@ -18,7 +18,8 @@ that the resting pile heights agree. Writes bench/results/peers.json and peers.p
     python bench/bench_peers.py            # all scenes
     python bench/bench_peers.py --scenes stiff_10 soft_5
     python bench/bench_peers.py --repeat 3    # 3 interleaved runs per engine and scene: the fastest of each, and
-                                              # each repeat's own ratio (how far the machine's phases move it)
+                                              # each repeat's own ratio (how far the machine's phases move it);
+                                              # every scene first runs once untimed (kernel loading)
     python bench/bench_peers.py --batched     # also NewtPhys without the fused Newton kernel, side by side
     python bench/bench_peers.py --quick       # stiff_10 and soft_5 only (make bench)
 """
@@ -166,6 +167,10 @@ def main(argv: list[str] | None = None) -> dict:
     for name in args.scenes:
         scene = SCENES[name]
         peers, ours_runs, batched_runs = [], [], []
+        # untimed warm-up: a process's first run loads (on a fresh machine: compiles, tens of seconds) warp's kernels
+        run_newtphys(scene, fused_newton=True)
+        if args.batched:
+            run_newtphys(scene, fused_newton=False)
         for _ in range(args.repeat):  # interleaved: a slower or faster phase of the machine meets both engines
             peers.append(run_pybullet(scene))
             ours_runs.append(run_newtphys(scene))
