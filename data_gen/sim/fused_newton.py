@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+import numpy as np
 import torch
 import warp as wp
 
@@ -950,6 +951,62 @@ def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Subst
                     ss.tm_now[o, r, a] = wk.tm[o, r, a]
 
 
+# per-object and per-object-pair sums of a sub-step's contact forces (what a step's statistics are made of)
+SUMS = 10  # force (3, N), force-weighted position (3, N m), force-weighted normal (3, N), force magnitude (1, N)
+
+
+@wp.kernel
+def scene_sums_kernel(forces: ForceOutputs, valid: wp.array2d(dtype=wp.int32), out: wp.array3d(dtype=wp.float64)):
+    """Row ``j``, object slot ``o``: the sums over its real spheres of the scene force f (N), |f| x (N m),
+    |f| n (N, n the scene normal) and |f| (N), sphere by sphere in order."""
+    j, o = wp.tid()
+    total = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    moment = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    normal = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    weight = _ZERO
+    for s in range(valid.shape[1]):
+        if valid[o, s] != 0:
+            f = forces.scene_force[j, o, s]
+            m = wp.length(f)
+            total = total + f
+            moment = moment + m * forces.sphere_x[j, o, s]
+            normal = normal + m * forces.scene_normal[j, o, s]
+            weight = weight + m
+    for r in range(3):
+        out[j, o, r] = total[r]
+        out[j, o, 3 + r] = moment[r]
+        out[j, o, 6 + r] = normal[r]
+    out[j, o, 9] = weight
+
+
+@wp.kernel
+def pair_sums_kernel(forces: ForceOutputs, st: StepData, pair_group: wp.array(dtype=wp.int32),
+                     num_groups: int, out: wp.array3d(dtype=wp.float64)):  # fmt: skip
+    """Row ``j``: per group of pairs (``pair_group``: one object pair's candidates), the sums over its pairs with
+    a force, in row order, of the force on side i f (N), |f| (x_i + x_j) / 2 (N m), |f| n (N, n from j to i)
+    and |f| (N)."""
+    j = wp.tid()
+    for g in range(num_groups):
+        for k in range(SUMS):
+            out[j, g, k] = _ZERO
+    for p in range(st.num_pairs):
+        f = forces.pair_force[j, p]
+        m = wp.length(f)
+        g = pair_group[p]
+        if m > _ZERO and g >= 0:
+            x_i = forces.sphere_x[j, st.obj_i[p], st.sph_i[p]]
+            x_j = st.frozen_x_j[p]
+            if st.obj_j[p] >= 0:
+                x_j = forces.sphere_x[j, st.obj_j[p], st.sph_j[p]]
+            middle = (m * wp.float64(0.5)) * (x_i + x_j)
+            normal = m * forces.pair_normal[j, p]
+            for r in range(3):
+                out[j, g, r] = out[j, g, r] + f[r]
+                out[j, g, 3 + r] = out[j, g, 3 + r] + middle[r]
+                out[j, g, 6 + r] = out[j, g, 6 + r] + normal[r]
+            out[j, g, 9] = out[j, g, 9] + m
+
+
 @dataclass
 class SubstepResult:
     """What :meth:`FusedNewton.solve_substeps` returns: the padded states and rates (n, 3, K) after the last
@@ -967,14 +1024,19 @@ class SubstepResult:
     sphere_positions_m: torch.Tensor
     pair_force_i_n: torch.Tensor
     pair_normals: torch.Tensor
+    # with pair groups: per sub-step the sums of :data:`SUMS` per object slot (J, n, 10) and per group (J, G, 10)
+    scene_sums: torch.Tensor | None = None
+    pair_sums: torch.Tensor | None = None
 
-    def part(self, slots: torch.Tensor, rows: tuple[int, int], num_sub: int) -> SubstepResult:
-        """The result of the objects in solve slots ``slots`` (in that order) and the pairs in rows ``rows`` over
-        their first ``num_sub`` sub-steps (the whole result when that is all of it, in order).
-        ``iterations`` and ``counters`` stay those of the whole launch."""
+    def part(self, slots: torch.Tensor, rows: tuple[int, int], num_sub: int,
+             groups: tuple[int, int] | None = None) -> SubstepResult:  # fmt: skip
+        """The result of the objects in solve slots ``slots`` (in that order), the pairs in rows ``rows`` and the
+        pair groups ``groups`` (first, end) over their first ``num_sub`` sub-steps (the whole result when that is
+        all of it, in order). ``iterations`` and ``counters`` stay those of the whole launch."""
         p0, p1 = rows
         n = self.tm.shape[0]
-        if (p0, p1, num_sub) == (0, self.pair_force_i_n.shape[1], len(self.forces)) and torch.equal(
+        whole_groups = groups is None or self.pair_sums is None or groups == (0, self.pair_sums.shape[1])
+        if whole_groups and (p0, p1, num_sub) == (0, self.pair_force_i_n.shape[1], len(self.forces)) and torch.equal(
             slots, torch.arange(n, dtype=slots.dtype)
         ):
             return self
@@ -990,6 +1052,8 @@ class SubstepResult:
             self.scene_force_n[:num_sub, slots], self.scene_normals[:num_sub, slots],
             self.sphere_positions_m[:num_sub, slots], self.pair_force_i_n[:num_sub, p0:p1],
             self.pair_normals[:num_sub, p0:p1],
+            None if self.scene_sums is None else self.scene_sums[:num_sub, slots],
+            None if self.pair_sums is None or groups is None else self.pair_sums[:num_sub, groups[0]:groups[1]],
         )  # fmt: skip
 
 
@@ -1092,6 +1156,10 @@ class FusedNewton:
         self._step.start_v = _wp(self.start_v, wp.vec3d)
         self._pair_capacity = -1
         self._substeps: Substeps | None = None
+        self.shape_objects = n
+        # solve_substeps' force sums (rows, n, 10) / (rows, groups, 10) with their warp views, and each pair's group
+        self._sums: tuple[torch.Tensor, torch.Tensor, wp.array, wp.array] | None = None
+        self._pair_group_capacity = 0
         self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
         self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)
@@ -1267,7 +1335,8 @@ class FusedNewton:
     def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],
                        num_sub: int | Sequence[int], gravity_m_s2: torch.Tensor, settings: NewtonSettings,
                        scene_stiffness_n_m: torch.Tensor, smoothing_m: float | Sequence[float], pairs: PairSet | None,
-                       pair_mu: torch.Tensor, pair_margin_m: float) -> SubstepResult | None:  # fmt: skip
+                       pair_mu: torch.Tensor, pair_margin_m: float,
+                       pair_group: np.ndarray | None = None) -> SubstepResult | None:  # fmt: skip
         """``num_sub`` implicit Euler sub-steps of ``h_s`` seconds of every island in one launch
         (:func:`substeps_kernel`), from padded states ``tm`` and rates ``tmdot`` (n, 3, K). ``h_s``, ``num_sub``
         and ``smoothing_m`` are one value for every island or one per island (islands of one launch may take
@@ -1277,7 +1346,12 @@ class FusedNewton:
         ``pairs`` (their frozen normal forces from each sub-step's start, friction coefficients ``pair_mu``
         (P,)) serve every sub-step (each evaluates those that can touch within it, ``pair_margin_m`` m being the
         broad phase's margin), and each is solved as :meth:`solve` solves one. None when a sub-step of
-        some island needs ``minimise`` (nothing is kept: the caller solves the sub-steps one by one)."""
+        some island needs ``minimise`` (nothing is kept: the caller solves the sub-steps one by one).
+
+        With ``pair_group`` ((P,) int, each pair's group 0..G-1, or -1 for none) the result also holds each
+        sub-step's sums of the scene forces per object slot and of the pair forces per group
+        (:func:`scene_sums_kernel`, :func:`pair_sums_kernel`): a step's statistics without a pass over the
+        per-sphere forces on the host."""
         n_isl, _ = self.shape
         h_isl = [float(h_s)] * n_isl if isinstance(h_s, (int, float)) else [float(h) for h in h_s]
         count = [int(num_sub)] * n_isl if isinstance(num_sub, int) else [int(k) for k in num_sub]
@@ -1309,6 +1383,9 @@ class FusedNewton:
         out = self.sub_stats[:num_sub].to(torch.int64)  # (sub, n_isl, NUM_STATS)
         if bool((out[:, :, STATUS] != SOLVED).any()):
             return None
+        scene_sums = pair_sums = None
+        if pair_group is not None:
+            scene_sums, pair_sums = self._force_sums(ss, num_sub, p, pair_group)
         totals = out.sum((0, 1)).tolist()
         counters = {
             "evaluations": totals[EVALUATIONS],
@@ -1329,8 +1406,34 @@ class FusedNewton:
         return SubstepResult(
             self.tm_now.clone(), self.tmdot.clone(), out[:, :, ITERATIONS], counters, forces,
             self.sub_scene_force[:num_sub], self.sub_scene_normal[:num_sub], self.sub_sphere_x[:num_sub],
-            self.sub_pair_force[:num_sub, :p], self.sub_pair_normal[:num_sub, :p],
+            self.sub_pair_force[:num_sub, :p], self.sub_pair_normal[:num_sub, :p], scene_sums, pair_sums,
         )  # fmt: skip
+
+    def _force_sums(self, ss: Substeps, num_sub: int, num_pairs: int,
+                    pair_group: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """The sums of :meth:`solve_substeps` over its first ``num_sub`` rows: (num_sub, n, 10) and (num_sub, G, 10)."""
+        groups = int(pair_group.max()) + 1 if len(pair_group) else 0
+        like = dict(dtype=self.q.dtype, device=self.q.device)
+        if self._sums is None or self._sums[0].shape[0] < num_sub or self._sums[1].shape[1] < groups:
+            rows = max(num_sub, 0 if self._sums is None else self._sums[0].shape[0])
+            width = max(groups, 8, 0 if self._sums is None else self._sums[1].shape[1])
+            scene = torch.zeros(rows, self.shape_objects, SUMS, **like)
+            pair = torch.zeros(rows, width, SUMS, **like)
+            self._sums = (scene, pair, _wp(scene), _wp(pair))
+        if self._pair_group_capacity < len(self.pair_mu):
+            self.pair_group = torch.full((len(self.pair_mu),), -1, dtype=torch.int32, device=self.q.device)
+            self._pair_group_wp = _wp(self.pair_group)
+            self._pair_group_capacity = len(self.pair_mu)
+        self.pair_group[:num_pairs].copy_(torch.from_numpy(np.asarray(pair_group[:num_pairs], dtype=np.int32)))
+        scene, pair, scene_wp, pair_wp = self._sums
+        wp.launch(scene_sums_kernel, dim=(num_sub, self.shape_objects), device=self.device,
+                  inputs=[ss.forces, ss.valid, scene_wp])  # fmt: skip
+        if num_pairs:
+            wp.launch(pair_sums_kernel, dim=num_sub, device=self.device,
+                      inputs=[ss.forces, self._step, self._pair_group_wp, groups, pair_wp])  # fmt: skip
+        else:
+            pair[:num_sub, :groups].zero_()
+        return scene[:num_sub], pair[:num_sub, :groups]
 
     def _substep_buffers(self, num_sub: int) -> Substeps:
         """The :class:`Substeps` arguments over buffers for at least ``num_sub`` sub-steps (kept; reallocated for

@@ -833,8 +833,11 @@ class ImplicitEulerSolver:
             return None
         objects, slot_of, model = setup.objects, setup.slot_of, setup.model
         # each part's candidate pairs with its sub-step's stiffness (contiguous rows) and its objects' slots
-        part_pairs, slots, rows = [], [], []
-        p0 = 0
+        # and its object pairs: each part's candidate pairs grouped by (object i, object j), groups numbered
+        # part by part in sorted order (the statistics' sums per group come out of the launch)
+        part_pairs, slots, rows, group_ranges, group_objects, pair_group = [], [], [], [], [], []
+        p0 = g0 = 0
+        nb = len(self.bodies)
         for num_sub, group in parts:
             self.h = self.dt / num_sub
             members = [k for island in group for k in island]
@@ -843,6 +846,11 @@ class ImplicitEulerSolver:
             slots.append(torch.from_numpy(slot_of[members]))
             rows.append((p0, p0 + len(ps.obj_i)))
             p0 = rows[-1][1]
+            keys, local = np.unique(ps.obj_i * nb + ps.obj_j, return_inverse=True)
+            pair_group.append(local.reshape(-1) + g0)
+            group_ranges.append((g0, g0 + len(keys)))
+            group_objects.append((keys // nb, keys % nb))
+            g0 += len(keys)
         ps = part_pairs[0] if len(parts) == 1 else _concat_pair_sets(part_pairs)
         pairs = self._group_pairs(objects, slot_of, ps, model)
         tm_n, tmdot = self._padded_states(setup)
@@ -856,7 +864,7 @@ class ImplicitEulerSolver:
         result = fused.solve_substeps(
             tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
             scene_k, [self.preset.friction_smoothing_m_s * h for h in h_island], pairs, ps.mu,
-            self.broad_phase.margin_m,
+            self.broad_phase.margin_m, np.concatenate(pair_group),
         )  # fmt: skip
         if result is None:
             self.counters["fused_handed_back"] += 1
@@ -877,78 +885,59 @@ class ImplicitEulerSolver:
             self.state.qdot[o] = qdot_o
             positions[o] = self.bodies[o].contact_positions(q_o)
 
-        def record(num_sub: int, part_ps: _PairSet, part_slots: torch.Tensor, row_range: tuple[int, int]) -> None:
+        def record(num_sub: int, part_ps: _PairSet, part_slots: torch.Tensor, row_range: tuple[int, int],
+                   group_range: tuple[int, int], part_groups: tuple[np.ndarray, np.ndarray]) -> None:  # fmt: skip
             h = self.dt / num_sub
             self.h = h
-            sub = result.part(part_slots, row_range, num_sub)
-            part = _pair_rows(pairs, part_slots, len(objects), row_range)
+            sub = result.part(part_slots, row_range, num_sub, group_range)
             part_objects = [objects[slot] for slot in part_slots.tolist()]  # island by island
             valid = model.sphere_valid[part_slots]
-            self._record_substep_statistics(part_objects, sub, part_ps, part, valid, h, stats, supported)
+            self._record_substep_statistics(part_objects, sub, part_groups, valid, h, stats, supported)
             if self._record_spheres:
+                part = _pair_rows(pairs, part_slots, len(objects), row_range)
                 self._record_substep_sphere_forces(part_objects, sub, part_ps, part, valid)
 
         return {
-            num_sub: partial(record, num_sub, part_ps, part_slots, row_range)
-            for (num_sub, _), part_ps, part_slots, row_range in zip(parts, part_pairs, slots, rows)
+            num_sub: partial(record, num_sub, part_ps, part_slots, row_range, group_range, part_groups)
+            for (num_sub, _), part_ps, part_slots, row_range, group_range, part_groups
+            in zip(parts, part_pairs, slots, rows, group_ranges, group_objects)
         }
 
-    def _record_substep_statistics(self, objects: list[int], result: SubstepResult, ps: _PairSet, pairs: PairSet,
-                                   sphere_valid: torch.Tensor, h: float, stats: StepStats,
-                                   supported: np.ndarray) -> None:  # fmt: skip
+    def _record_substep_statistics(self, objects: list[int], result: SubstepResult,
+                                   groups: tuple[np.ndarray, np.ndarray], sphere_valid: torch.Tensor, h: float,
+                                   stats: StepStats, supported: np.ndarray) -> None:  # fmt: skip
         """What :meth:`_record_group_forces` records for each sub-step of ``result`` in a step whose per-sphere
-        records nobody reads, with the arithmetic batched over the sub-steps: the step statistics (per
-        sub-step and object pair, in the same order), support, and each object's scene forces and summary of
-        the last sub-step (kept if it falls asleep)."""
-        valid = sphere_valid[None, :, :, None]
-        force = result.scene_force_n * valid  # (J, n, S, 3)
-        mag = force.norm(dim=3)
-        total = force.sum(2)
-        weight = mag.sum(2).clamp(min=1e-300)
-        pos = (mag[..., None] * result.sphere_positions_m).sum(2) / weight[..., None]
-        nrm = (mag[..., None] * result.scene_normals).sum(2)
-        nrm = nrm / nrm.norm(dim=2, keepdim=True).clamp(min=1e-300)
-        touching = (mag > 0).any(2).numpy()  # (J, n)
-        total_np, pos_np, nrm_np = total.numpy(), pos.numpy(), nrm.numpy()
+        records nobody reads, from the launch's force sums (``result.scene_sums`` per object, ``pair_sums`` per
+        group of pairs, the groups' objects ``groups`` = (object i, object j) in sorted order): the step
+        statistics (per sub-step and object pair, in the same order), support, and each object's scene forces and
+        summary of the last sub-step (kept if it falls asleep)."""
+        scene = result.scene_sums.numpy()  # (J, n, 10)
+        touching = scene[..., 9] > 0  # (J, n): some sphere pushed by the scene
+        total_np = scene[..., 0:3]
+        pos_np = scene[..., 3:6] / np.maximum(scene[..., 9:10], 1e-300)
+        nrm_np = scene[..., 6:9]
+        nrm_np = nrm_np / np.maximum(np.sqrt((nrm_np[..., None, :] @ nrm_np[..., :, None])[..., 0]), 1e-300)
         ids = [self.bodies[o].object_id for o in objects]
-        # pairs in contact, sub-step by sub-step: their object pairs' totals (as _accumulate_pair_forces)
-        n = len(self.bodies)
-        pair_keys, obj_a, obj_c, sums = (np.zeros(0, dtype=np.int64),) * 3 + (np.zeros((0, 10)),)
-        if pairs.num_pairs:
-            f_all = result.pair_force_i_n  # (J, P, 3)
-            jj, pp = (t.numpy() for t in torch.nonzero((f_all != 0).any(2), as_tuple=True))
-            fa_t = f_all[jj, pp]
-            m = fa_t.norm(dim=1).numpy()
-            keep = m > 0
-            jj, pp, m, fa = jj[keep], pp[keep], m[keep], fa_t.numpy()[keep]
-            if len(pp):
-                x = result.sphere_positions_m
-                obj_i, sph_i, obj_j = pairs.obj_i.numpy()[pp], pairs.sph_i.numpy()[pp], pairs.obj_j.numpy()[pp]
-                xi = x[jj, obj_i, sph_i].numpy()
-                xj = np.where((obj_j < 0)[:, None], pairs.frozen_x_j.numpy()[pp],
-                              x[jj, np.maximum(obj_j, 0), pairs.sph_j.numpy()[pp]].numpy())  # fmt: skip
-                oi, oj = ps.obj_i[pp], ps.obj_j[pp]
-                pair_keys, group = np.unique((jj * n + oi) * n + oj, return_inverse=True)  # by sub-step, (a, c)
-                normal = result.pair_normals[jj, pp].numpy()
-                weighted = np.concatenate([fa, m[:, None] * 0.5 * (xi + xj), m[:, None] * normal, m[:, None]], axis=1)
-                sums = np.zeros((len(pair_keys), 10))
-                np.add.at(sums, group.reshape(-1), weighted)
-                obj_a, obj_c = (pair_keys // n) % n, pair_keys % n
-                asleep = self.state.asleep
-                supported[obj_a] = True
-                supported[obj_c[asleep[obj_c]]] = True
-        key_step = pair_keys // (n * n)
+        pair_sums = result.pair_sums.numpy()  # (J, G, 10)
+        active = pair_sums[..., 9] > 0  # (J, G): some pair of the group pushed
+        group_a, group_c = groups
+        if active.any():
+            live = active.any(0)
+            supported[group_a[live]] = True
+            sleeping_c = group_c[live][self.state.asleep[group_c[live]]]
+            supported[sleeping_c] = True
         for j in range(touching.shape[0]):  # sub-step by sub-step: scene contacts, then object pairs
             for slot in np.flatnonzero(touching[j]):
                 supported[objects[slot]] = True
                 stats.add_pair_force((ids[slot], 0), total_np[j, slot], pos_np[j, slot], nrm_np[j, slot], h)
-            lo, hi = np.searchsorted(key_step, [j, j + 1])
-            if hi > lo:
-                self._add_object_pair_statistics(obj_a[lo:hi], obj_c[lo:hi], sums[lo:hi], stats)
+            g = np.flatnonzero(active[j])
+            if len(g):
+                self._add_object_pair_statistics(group_a[g], group_c[g], pair_sums[j, g], stats)
         last = touching.shape[0] - 1
+        force = result.scene_force_n[last] * sphere_valid[:, :, None]  # (n, S, 3)
         for slot, o in enumerate(objects):  # what an object that falls asleep now keeps
             b = self.bodies[o]
-            b.static_force_n = force[last, slot, : b.contact.num_points]
+            b.static_force_n = force[slot, : b.contact.num_points]
             b.static_summary = (
                 (total_np[last, slot], pos_np[last, slot], nrm_np[last, slot]) if touching[last, slot] else None
             )
