@@ -842,6 +842,10 @@ class Substeps:
     line_search_steps: int
     forces: ForceOutputs  # one row per sub-step, see _final_forces
     stats: wp.array3d(dtype=wp.int32)  # (sub, n_isl, NUM_STATS)
+    with_sums: int  # 1: each sub-step's force sums (_force_sums) into the three arrays below
+    scene_sums: wp.array3d(dtype=wp.float64)  # (sub, n, SUMS) per object
+    pair_sums: wp.array3d(dtype=wp.float64)  # (sub, groups, SUMS) per group of pairs
+    pair_group: wp.array(dtype=wp.int32)  # (pairs,) each pair's group, -1 for none
 
 
 @wp.func
@@ -918,12 +922,68 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
     st.live_count[isl] = live
 
 
+# per-object and per-object-pair sums of a sub-step's contact forces (what a step's statistics are made of)
+SUMS = 10  # force (3, N), force-weighted position (3, N m), force-weighted normal (3, N), force magnitude (1, N)
+
+
+@wp.func
+def _force_sums(bd: Bodies, st: StepData, ss: Substeps, isl: int, j: int):
+    """Row ``j`` of island ``isl``'s force sums, from the forces :func:`_final_forces` just wrote: per object,
+    over its real spheres in order, the scene force f (N), |f| x (N m), |f| n (N, n the scene normal) and |f|
+    (N); per group of pairs (``ss.pair_group``: one object pair's candidates, all on this island's side i), over
+    its pairs with a force in row order, the force on side i, |f| (x_i + x_j) / 2, |f| n (n from j to i) and
+    |f|."""
+    forces = ss.forces
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        total = wp.vec3d(_ZERO, _ZERO, _ZERO)
+        moment = wp.vec3d(_ZERO, _ZERO, _ZERO)
+        normal = wp.vec3d(_ZERO, _ZERO, _ZERO)
+        weight = _ZERO
+        for s in range(ss.valid.shape[1]):
+            if ss.valid[o, s] != 0:
+                f = forces.scene_force[j, o, s]
+                m = wp.length(f)
+                total = total + f
+                moment = moment + m * forces.sphere_x[j, o, s]
+                normal = normal + m * forces.scene_normal[j, o, s]
+                weight = weight + m
+        for r in range(3):
+            ss.scene_sums[j, o, r] = total[r]
+            ss.scene_sums[j, o, 3 + r] = moment[r]
+            ss.scene_sums[j, o, 6 + r] = normal[r]
+        ss.scene_sums[j, o, 9] = weight
+    for k in range(st.pair_start[isl], st.pair_start[isl + 1]):  # the island's pairs, in row order
+        g = ss.pair_group[st.pair_order[k]]
+        if g >= 0:
+            for c in range(SUMS):
+                ss.pair_sums[j, g, c] = _ZERO
+    for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
+        p = st.pair_order[k]
+        f = forces.pair_force[j, p]
+        m = wp.length(f)
+        g = ss.pair_group[p]
+        if m > _ZERO and g >= 0:
+            x_i = forces.sphere_x[j, st.obj_i[p], st.sph_i[p]]
+            x_j = st.frozen_x_j[p]
+            if st.obj_j[p] >= 0:
+                x_j = forces.sphere_x[j, st.obj_j[p], st.sph_j[p]]
+            middle = (m * wp.float64(0.5)) * (x_i + x_j)
+            n_m = m * forces.pair_normal[j, p]
+            for r in range(3):
+                ss.pair_sums[j, g, r] = ss.pair_sums[j, g, r] + f[r]
+                ss.pair_sums[j, g, 3 + r] = ss.pair_sums[j, g, 3 + r] + middle[r]
+                ss.pair_sums[j, g, 6 + r] = ss.pair_sums[j, g, 6 + r] + n_m[r]
+            ss.pair_sums[j, g, 9] = ss.pair_sums[j, g, 9] + m
+
+
 @wp.kernel
 def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps):
     """Island ``isl`` through its ``ss.num_sub[isl]`` implicit Euler sub-steps of ``ss.h[isl]`` (islands may
     differ: rows beyond an island's count are left alone): each starts from the previous
     one's result (:func:`_substep_start`), is solved by :func:`_newton` (its own threshold and trust radius)
-    and leaves its contact forces in the outputs (:func:`_final_forces`) and its counters in ``ss.stats``;
+    and leaves its contact forces in the outputs (:func:`_final_forces`), their sums (:func:`_force_sums`, with
+    ``ss.with_sums``) and its counters in ``ss.stats``;
     ``ss.tm_now`` / ``ss.tmdot`` end at the last one's state and rate. A sub-step that needs ``minimise``
     stops the island there (its status in ``ss.stats``)."""
     isl = wp.tid()
@@ -943,68 +1003,14 @@ def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Subst
         if wk.stats[isl, STATUS] != SOLVED:
             return
         _final_forces(bd, sc, st, wk, isl, ss.forces, j)
+        if ss.with_sums != 0:
+            _force_sums(bd, st, ss, isl, j)
         for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):  # wk.tm holds the result
             o = bd.island_objects[slot]
             for r in range(3):
                 for a in range(bd.columns[o]):
                     ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / h
                     ss.tm_now[o, r, a] = wk.tm[o, r, a]
-
-
-# per-object and per-object-pair sums of a sub-step's contact forces (what a step's statistics are made of)
-SUMS = 10  # force (3, N), force-weighted position (3, N m), force-weighted normal (3, N), force magnitude (1, N)
-
-
-@wp.kernel
-def scene_sums_kernel(forces: ForceOutputs, valid: wp.array2d(dtype=wp.int32), out: wp.array3d(dtype=wp.float64)):
-    """Row ``j``, object slot ``o``: the sums over its real spheres of the scene force f (N), |f| x (N m),
-    |f| n (N, n the scene normal) and |f| (N), sphere by sphere in order."""
-    j, o = wp.tid()
-    total = wp.vec3d(_ZERO, _ZERO, _ZERO)
-    moment = wp.vec3d(_ZERO, _ZERO, _ZERO)
-    normal = wp.vec3d(_ZERO, _ZERO, _ZERO)
-    weight = _ZERO
-    for s in range(valid.shape[1]):
-        if valid[o, s] != 0:
-            f = forces.scene_force[j, o, s]
-            m = wp.length(f)
-            total = total + f
-            moment = moment + m * forces.sphere_x[j, o, s]
-            normal = normal + m * forces.scene_normal[j, o, s]
-            weight = weight + m
-    for r in range(3):
-        out[j, o, r] = total[r]
-        out[j, o, 3 + r] = moment[r]
-        out[j, o, 6 + r] = normal[r]
-    out[j, o, 9] = weight
-
-
-@wp.kernel
-def pair_sums_kernel(forces: ForceOutputs, st: StepData, pair_group: wp.array(dtype=wp.int32),
-                     num_groups: int, out: wp.array3d(dtype=wp.float64)):  # fmt: skip
-    """Row ``j``: per group of pairs (``pair_group``: one object pair's candidates), the sums over its pairs with
-    a force, in row order, of the force on side i f (N), |f| (x_i + x_j) / 2 (N m), |f| n (N, n from j to i)
-    and |f| (N)."""
-    j = wp.tid()
-    for g in range(num_groups):
-        for k in range(SUMS):
-            out[j, g, k] = _ZERO
-    for p in range(st.num_pairs):
-        f = forces.pair_force[j, p]
-        m = wp.length(f)
-        g = pair_group[p]
-        if m > _ZERO and g >= 0:
-            x_i = forces.sphere_x[j, st.obj_i[p], st.sph_i[p]]
-            x_j = st.frozen_x_j[p]
-            if st.obj_j[p] >= 0:
-                x_j = forces.sphere_x[j, st.obj_j[p], st.sph_j[p]]
-            middle = (m * wp.float64(0.5)) * (x_i + x_j)
-            normal = m * forces.pair_normal[j, p]
-            for r in range(3):
-                out[j, g, r] = out[j, g, r] + f[r]
-                out[j, g, 3 + r] = out[j, g, 3 + r] + middle[r]
-                out[j, g, 6 + r] = out[j, g, 6 + r] + normal[r]
-            out[j, g, 9] = out[j, g, 9] + m
 
 
 @dataclass
@@ -1156,10 +1162,7 @@ class FusedNewton:
         self._step.start_v = _wp(self.start_v, wp.vec3d)
         self._pair_capacity = -1
         self._substeps: Substeps | None = None
-        self.shape_objects = n
-        # solve_substeps' force sums (rows, n, 10) / (rows, groups, 10) with their warp views, and each pair's group
-        self._sums: tuple[torch.Tensor, torch.Tensor, wp.array, wp.array] | None = None
-        self._pair_group_capacity = 0
+        self._like = dict(dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
         self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)
@@ -1349,9 +1352,9 @@ class FusedNewton:
         some island needs ``minimise`` (nothing is kept: the caller solves the sub-steps one by one).
 
         With ``pair_group`` ((P,) int, each pair's group 0..G-1, or -1 for none) the result also holds each
-        sub-step's sums of the scene forces per object slot and of the pair forces per group
-        (:func:`scene_sums_kernel`, :func:`pair_sums_kernel`): a step's statistics without a pass over the
-        per-sphere forces on the host."""
+        sub-step's sums of the scene forces per object slot and of the pair forces per group, summed in the
+        launch (:func:`_force_sums`): a step's statistics without a pass over the per-sphere forces on the
+        host."""
         n_isl, _ = self.shape
         h_isl = [float(h_s)] * n_isl if isinstance(h_s, (int, float)) else [float(h) for h in h_s]
         count = [int(num_sub)] * n_isl if isinstance(num_sub, int) else [int(k) for k in num_sub]
@@ -1379,13 +1382,14 @@ class FusedNewton:
         ss.tolerance = wp.float64(settings.tolerance)
         ss.gravity_norm = wp.float64(self._gravity_norm)
         ss.iterations, ss.line_search_steps = int(settings.iterations), int(settings.line_search_steps)
+        groups = self._bind_sums(ss, num_sub, p, pair_group)
         wp.launch(substeps_kernel, dim=n_isl, device=self.device, inputs=[self.bodies, self.scene, st, self.work, ss])
         out = self.sub_stats[:num_sub].to(torch.int64)  # (sub, n_isl, NUM_STATS)
         if bool((out[:, :, STATUS] != SOLVED).any()):
             return None
         scene_sums = pair_sums = None
         if pair_group is not None:
-            scene_sums, pair_sums = self._force_sums(ss, num_sub, p, pair_group)
+            scene_sums, pair_sums = self.sub_scene_sums[:num_sub], self.sub_pair_sums[:num_sub, :groups]
         totals = out.sum((0, 1)).tolist()
         counters = {
             "evaluations": totals[EVALUATIONS],
@@ -1409,31 +1413,19 @@ class FusedNewton:
             self.sub_pair_force[:num_sub, :p], self.sub_pair_normal[:num_sub, :p], scene_sums, pair_sums,
         )  # fmt: skip
 
-    def _force_sums(self, ss: Substeps, num_sub: int, num_pairs: int,
-                    pair_group: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-        """The sums of :meth:`solve_substeps` over its first ``num_sub`` rows: (num_sub, n, 10) and (num_sub, G, 10)."""
+    def _bind_sums(self, ss: Substeps, num_sub: int, num_pairs: int, pair_group: np.ndarray | None) -> int:
+        """Set ``ss`` up for :func:`_force_sums` with each pair's group ``pair_group`` (P,) (none: no sums);
+        the pair-sum buffer grows to the number of groups, which is returned."""
+        if pair_group is None:
+            ss.with_sums = 0
+            return 0
         groups = int(pair_group.max()) + 1 if len(pair_group) else 0
-        like = dict(dtype=self.q.dtype, device=self.q.device)
-        if self._sums is None or self._sums[0].shape[0] < num_sub or self._sums[1].shape[1] < groups:
-            rows = max(num_sub, 0 if self._sums is None else self._sums[0].shape[0])
-            width = max(groups, 8, 0 if self._sums is None else self._sums[1].shape[1])
-            scene = torch.zeros(rows, self.shape_objects, SUMS, **like)
-            pair = torch.zeros(rows, width, SUMS, **like)
-            self._sums = (scene, pair, _wp(scene), _wp(pair))
-        if self._pair_group_capacity < len(self.pair_mu):
-            self.pair_group = torch.full((len(self.pair_mu),), -1, dtype=torch.int32, device=self.q.device)
-            self._pair_group_wp = _wp(self.pair_group)
-            self._pair_group_capacity = len(self.pair_mu)
-        self.pair_group[:num_pairs].copy_(torch.from_numpy(np.asarray(pair_group[:num_pairs], dtype=np.int32)))
-        scene, pair, scene_wp, pair_wp = self._sums
-        wp.launch(scene_sums_kernel, dim=(num_sub, self.shape_objects), device=self.device,
-                  inputs=[ss.forces, ss.valid, scene_wp])  # fmt: skip
-        if num_pairs:
-            wp.launch(pair_sums_kernel, dim=num_sub, device=self.device,
-                      inputs=[ss.forces, self._step, self._pair_group_wp, groups, pair_wp])  # fmt: skip
-        else:
-            pair[:num_sub, :groups].zero_()
-        return scene[:num_sub], pair[:num_sub, :groups]
+        if self.sub_pair_sums.shape[1] < groups:
+            self.sub_pair_sums = torch.zeros(self.sub_pair_sums.shape[0], 2 * groups, SUMS, **self._like)
+            ss.pair_sums = _wp(self.sub_pair_sums)
+        self.pair_group[:num_pairs].copy_(torch.from_numpy(np.asarray(pair_group, dtype=np.int32)))
+        ss.with_sums = 1
+        return groups
 
     def _substep_buffers(self, num_sub: int) -> Substeps:
         """The :class:`Substeps` arguments over buffers for at least ``num_sub`` sub-steps (kept; reallocated for
@@ -1451,6 +1443,11 @@ class FusedNewton:
         self.sub_scene_normal = torch.zeros_like(self.sub_sphere_x)
         self.sub_pair_force = torch.zeros(count, capacity, 3, **like)
         self.sub_pair_normal = torch.zeros_like(self.sub_pair_force)
+        self.sub_scene_sums = torch.zeros(count, n, SUMS, **like)
+        self.sub_pair_sums = torch.zeros(count, 8, SUMS, **like)  # (grows with the groups, see _bind_sums)
+        self.pair_group = torch.full((capacity,), -1, dtype=torch.int32, device=self.q.device)
+        ss.scene_sums, ss.pair_sums, ss.pair_group = _wp(self.sub_scene_sums), _wp(self.sub_pair_sums), _wp(self.pair_group)
+        ss.with_sums = 0
         ss.tm_now, ss.tmdot = _wp(self.tm_now), _wp(self.tmdot)
         ss.scene_stiffness, ss.friction = _wp(self.scene_k), _wp(self._keep["friction"])
         ss.valid, ss.pair_mu = _wp(self._keep["valid"]), _wp(self.pair_mu)

@@ -216,8 +216,8 @@ def test_fused_simulation_agrees_with_the_batched_path_and_repeats():
 
 def test_fused_step_statistics_equal_the_batched_paths(monkeypatch):
     """Every step's contact statistics (per object pair and with the scene: impulse, peak force, its position
-    and normal), which the fused path sums inside its launch (:func:`~data_gen.sim.fused_newton.pair_sums_kernel`,
-    :func:`~data_gen.sim.fused_newton.scene_sums_kernel`) and the batched path sums on the host sub-step by
+    and normal), which the fused path sums inside its launch (:func:`~data_gen.sim.fused_newton._force_sums`)
+    and the batched path sums on the host sub-step by
     sub-step, agree to 1e-6 in every step of a thrown box hitting a stack that then falls asleep (pairs between
     awake objects and with sleeping partners); so do the contact events made from them."""
     import data_gen.sim.solver as solver_module
