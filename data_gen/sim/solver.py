@@ -894,8 +894,7 @@ class ImplicitEulerSolver:
             valid = model.sphere_valid[part_slots]
             self._record_substep_statistics(part_objects, sub, part_groups, valid, h, stats, supported)
             if self._record_spheres:
-                part = _pair_rows(pairs, part_slots, len(objects), row_range)
-                self._record_substep_sphere_forces(part_objects, sub, part_ps, part, valid)
+                self._record_substep_sphere_forces(part_objects, sub, part_ps, valid)
 
         return {
             num_sub: partial(record, num_sub, part_ps, part_slots, row_range, group_range, part_groups)
@@ -943,14 +942,14 @@ class ImplicitEulerSolver:
             )
 
     def _record_substep_sphere_forces(self, objects: list[int], result: SubstepResult, ps: _PairSet,
-                                      pairs: PairSet, sphere_valid: torch.Tensor) -> None:  # fmt: skip
+                                      sphere_valid: torch.Tensor) -> None:  # fmt: skip
         """The per-sphere records (contact force, partner and its strength) that one :meth:`_record_group_forces`
         call per sub-step of ``result`` leaves (the statistics: :meth:`_record_substep_statistics`): each call
         starts the records of ``objects`` anew, so theirs are the last sub-step's; a sleeping partner collects
         the pair forces of every sub-step, in order, so earlier sub-steps add only their pairs with a sleeping
         side j."""
         last = len(result.forces) - 1
-        asleep_j = torch.from_numpy(self.state.asleep[ps.obj_j]) if pairs.num_pairs else None
+        asleep_j = torch.from_numpy(self.state.asleep[ps.obj_j]) if len(ps.obj_j) else None
         for j, forces in enumerate(result.forces):
             if j == last:  # the records start from this sub-step's scene forces
                 force = forces.scene_force_n * sphere_valid[:, :, None]
@@ -1202,29 +1201,6 @@ def _concat_pair_sets(sets: list[_PairSet]) -> _PairSet:
         parts = [getattr(ps, f.name) for ps in sets]
         values[f.name] = np.concatenate(parts) if isinstance(parts[0], np.ndarray) else torch.cat(parts)
     return _PairSet(**values)
-
-
-def _pair_rows(pairs: PairSet, slots: torch.Tensor, num_slots: int, row_range: tuple[int, int]) -> PairSet:
-    """Rows ``row_range`` of a solve's pairs (``num_slots`` solve slots) whose objects are the solve slots
-    ``slots``, their objects numbered by position in ``slots`` (a frozen side j stays ``FROZEN``)."""
-    lo, hi = row_range
-    local = torch.full((num_slots,), -1, dtype=torch.int64)
-    local[slots] = torch.arange(len(slots))
-    obj_j = pairs.obj_j[lo:hi]
-    return PairSet(
-        obj_i=local[pairs.obj_i[lo:hi]],
-        sph_i=pairs.sph_i[lo:hi],
-        obj_j=torch.where(obj_j >= 0, local[obj_j.clamp(min=0)], obj_j),
-        sph_j=pairs.sph_j[lo:hi],
-        frozen_x_j=pairs.frozen_x_j[lo:hi],
-        stiffness_n_m=pairs.stiffness_n_m[lo:hi],
-        radius_sum_m=pairs.radius_sum_m[lo:hi],
-        friction=pairs.friction[lo:hi],
-        normal_force_n=pairs.normal_force_n[lo:hi],
-        normal0=pairs.normal0[lo:hi],
-        x0_i=pairs.x0_i[lo:hi],
-        x0_j=pairs.x0_j[lo:hi],
-    )
 
 
 def _model_bytes(model: Model) -> int:

@@ -404,20 +404,23 @@ def test_a_recorded_fused_step_keeps_the_sphere_records_of_one_record_per_subste
     seen = {"calls": 0, "sleeping_partner_forces": 0}
     batched = ImplicitEulerSolver._record_substep_sphere_forces
 
-    def counted(self, objects, result, ps, pairs, sphere_valid):
+    def counted(self, objects, result, ps, sphere_valid):
         seen["calls"] += 1
-        if pairs.num_pairs and len(result.forces) > 1:
+        if len(ps.obj_i) and len(result.forces) > 1:
             asleep = torch.from_numpy(self.state.asleep[ps.obj_j])
             for forces in result.forces[:-1]:
                 seen["sleeping_partner_forces"] += int(((forces.pair_force_i_n != 0).any(1) & asleep).sum())
-        return batched(self, objects, result, ps, pairs, sphere_valid)
+        return batched(self, objects, result, ps, sphere_valid)
 
     monkeypatch.setattr(ImplicitEulerSolver, "_record_substep_sphere_forces", counted)
     lean = _stack_then_drop()
     # sleeping partners pushed in sub-steps before a recorded step's last: their records sum sub-steps
     assert seen["calls"] > 0 and seen["sleeping_partner_forces"] > 0, seen
 
-    def every_substep(self, objects, result, ps, pairs, sphere_valid):  # the records as before, sub-step by sub-step
+    def every_substep(self, objects, result, ps, sphere_valid):  # the records as before, sub-step by sub-step
+        slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
+        slot_of[objects] = np.arange(len(objects))
+        pairs = self._group_pairs(objects, slot_of, ps, None)  # the part's pairs in its own slots
         for forces in result.forces:
             self._record_group_forces(objects, forces, ps, pairs, sphere_valid, self.h, StepStats(),
                                       np.zeros(len(self.bodies), dtype=bool))  # fmt: skip
