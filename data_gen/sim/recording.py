@@ -13,7 +13,8 @@ import numpy as np
 import torch
 
 from data_gen.sim.contact_points import ContactPoints
-from data_gen.sim.reduced import DTYPE, ReducedObject, deform, handle_permutation
+from data_gen.sim import material as mat
+from data_gen.sim.reduced import DTYPE, ReducedObject, deform, deformation_from_tmat, handle_permutation
 from data_gen.sim.skinning import SkinningBasis
 from newtphys.rotations import matrix_to_quat_one, rotation_from_cross_covariance
 
@@ -318,6 +319,8 @@ class ObjectFrameConstants:
         gravity_force_n: (n,3) m_i g at the cubature points, N (read-only; shared by every frame).
         z_from_q: (12H,) index with z = q[z_from_q] (``q_to_z``).
         contact_radius_m: (k,) contact sphere radii, m.
+        uniform_f: whether every cubature point's deformation basis is C = [I; 0] exactly (one affine handle):
+            F = I + Tm C is then the same matrix at every point, formed and its determinant taken once.
     """
 
     moments: InertiaMoments
@@ -325,6 +328,7 @@ class ObjectFrameConstants:
     gravity_force_n: np.ndarray
     z_from_q: np.ndarray
     contact_radius_m: np.ndarray
+    uniform_f: bool = False
 
     @classmethod
     def of(
@@ -339,7 +343,11 @@ class ObjectFrameConstants:
             gravity_force,
             np.argsort(handle_permutation(model.num_handles).numpy()),
             contact.radius_m.numpy(),
+            model.num_handles == 1 and bool((model.c == _IDENTITY_C.to(model.c.dtype)).all()),
         )
+
+
+_IDENTITY_C = torch.cat([torch.eye(3), torch.zeros(1, 3)])  # (4, 3) deformation basis of one affine handle
 
 
 class FrameRecorder:
@@ -430,7 +438,11 @@ def _object_frame(
     """One object's frame record, but its orientation and angular velocity (None here), and its rigid-body
     moments (from which :meth:`FrameRecorder.record` derives those two for all objects at once)."""
     x = model.positions(q)
-    F = model.deformation_gradients(q)
+    if constants.uniform_f:  # the same F at every point: one point's, its determinant repeated
+        det_f = np.full(model.num_points, det3(deformation_from_tmat(model.c[:1], model.tmat(q)).numpy())[0])
+    else:
+        F = model.deformation_gradients(q)
+        det_f = det3(F.numpy())
     sphere_x = contact.positions(q)
     q_np = q.numpy()
     # rigid-body quantities of the inertia particles (all of them when the model has them), from their moments
@@ -442,7 +454,8 @@ def _object_frame(
         )
         stress = np.full(model.num_points, mean)
     else:
-        stress = model.cauchy_hydrostatic(q).numpy()
+        stress = mat.hydrostatic_stress(model.deformation_gradients(q) if constants.uniform_f else F, model.mu_pa,
+                                        model.lam_pa).numpy()  # fmt: skip
     frame = {
         "handle_transforms": q_np[constants.z_from_q],
         "cubature_positions_m": x.numpy(),
@@ -451,7 +464,7 @@ def _object_frame(
         "contact_force_n": force.numpy().copy(),
         "contact_partner": partner.numpy().copy(),
         "hydrostatic_stress_pa": stress,
-        "det_f": det3(F.numpy()),
+        "det_f": det_f,
         "com_m": rigid.com_m,
         "orientation_wxyz": None,  # FrameRecorder.record fills these two for all objects at once
         "velocity_m_s": rigid.velocity_m_s,
