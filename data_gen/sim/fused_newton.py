@@ -1162,7 +1162,6 @@ class FusedNewton:
         self._step.start_v = _wp(self.start_v, wp.vec3d)
         self._pair_capacity = -1
         self._substeps: Substeps | None = None
-        self._like = dict(dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
         self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)
@@ -1421,7 +1420,8 @@ class FusedNewton:
             return 0
         groups = int(pair_group.max()) + 1 if len(pair_group) else 0
         if self.sub_pair_sums.shape[1] < groups:
-            self.sub_pair_sums = torch.zeros(self.sub_pair_sums.shape[0], 2 * groups, SUMS, **self._like)
+            old = self.sub_pair_sums
+            self.sub_pair_sums = old.new_zeros(old.shape[0], 2 * groups, SUMS)
             ss.pair_sums = _wp(self.sub_pair_sums)
         self.pair_group[:num_pairs].copy_(torch.from_numpy(np.asarray(pair_group, dtype=np.int32)))
         ss.with_sums = 1

@@ -693,7 +693,7 @@ class ImplicitEulerSolver:
             tmdot[setup.padded] = torch.cat([self.state.qdot[o] for o in setup.objects])
         return tm.reshape(n, 3, k), tmdot.reshape(n, 3, k)
 
-    def _group_pairs(self, objects: list[int], slot_of: np.ndarray, ps: _PairSet, model: Model) -> PairSet:
+    def _group_pairs(self, objects: list[int], slot_of: np.ndarray, ps: _PairSet) -> PairSet:
         """The candidate pairs of a solve in solved-object slots (sleeping partners frozen)."""
         obj_j = slot_of[ps.obj_j]
         frozen = obj_j < 0
@@ -727,7 +727,7 @@ class ImplicitEulerSolver:
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm_n, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
-            self._group_pairs(objects, slot_of, ps, model), setup.objective_workspace(self.scene_distance),
+            self._group_pairs(objects, slot_of, ps), setup.objective_workspace(self.scene_distance),
         )  # fmt: skip
 
         def check_gradient(grad: torch.Tensor) -> None:
@@ -852,7 +852,7 @@ class ImplicitEulerSolver:
             group_objects.append((keys // nb, keys % nb))
             g0 += len(keys)
         ps = part_pairs[0] if len(parts) == 1 else _concat_pair_sets(part_pairs)
-        pairs = self._group_pairs(objects, slot_of, ps, model)
+        pairs = self._group_pairs(objects, slot_of, ps)
         tm_n, tmdot = self._padded_states(setup)
         settings = NewtonSettings(
             self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps
@@ -987,7 +987,7 @@ class ImplicitEulerSolver:
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm - h * tmdot, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
-            self._group_pairs(objects, slot_of, ps, model), setup.objective_workspace(self.scene_distance),
+            self._group_pairs(objects, slot_of, ps), setup.objective_workspace(self.scene_distance),
         )  # fmt: skip
         self._record_group_forces(objects, objective.forces(tm), ps, objective.pairs, model.sphere_valid, h, stats,
                                   supported)  # fmt: skip

@@ -420,7 +420,7 @@ def test_a_recorded_fused_step_keeps_the_sphere_records_of_one_record_per_subste
     def every_substep(self, objects, result, ps, sphere_valid):  # the records as before, sub-step by sub-step
         slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
         slot_of[objects] = np.arange(len(objects))
-        pairs = self._group_pairs(objects, slot_of, ps, None)  # the part's pairs in its own slots
+        pairs = self._group_pairs(objects, slot_of, ps)  # the part's pairs in its own slots
         for forces in result.forces:
             self._record_group_forces(objects, forces, ps, pairs, sphere_valid, self.h, StepStats(),
                                       np.zeros(len(self.bodies), dtype=bool))  # fmt: skip
