@@ -201,6 +201,25 @@ class StepStats:
         if magnitude > entry["peak_force_n"]:
             entry.update(peak_force_n=magnitude, position_m=position_m, normal=normal)
 
+    def add_pair_forces(
+        self,
+        keys: list[tuple[int, int]],
+        forces_n: np.ndarray,
+        positions_m: np.ndarray,
+        normals: np.ndarray,
+        h_s: float,
+    ) -> None:
+        """:meth:`add_pair_force` of several pairs in order: ``keys``, forces (m, 3) N, positions (m, 3) m and
+        normals (m, 3); the magnitudes taken at once (the same values: |f| = sqrt(f . f) either way)."""
+        magnitudes = np.sqrt((forces_n * forces_n).sum(1)).tolist()
+        for key, magnitude, position_m, normal in zip(keys, magnitudes, positions_m, normals):  # loop over pairs
+            entry = self.pair_forces.setdefault(
+                key, {"impulse_n_s": 0.0, "peak_force_n": -1.0, "position_m": position_m, "normal": normal}
+            )
+            entry["impulse_n_s"] += magnitude * h_s
+            if magnitude > entry["peak_force_n"]:
+                entry.update(peak_force_n=magnitude, position_m=position_m, normal=normal)
+
 
 @dataclass
 class _PairSet:
@@ -213,9 +232,9 @@ class _PairSet:
     stiffness_n_m: torch.Tensor
     radius_sum_m: torch.Tensor
     mu: torch.Tensor
-    lam_n: torch.Tensor
-    normal0: torch.Tensor
-    x0_i: torch.Tensor
+    lam_n: torch.Tensor | None  # None: start data left to the fused sub-steps (``_island_pairs(start_state=False)``)
+    normal0: torch.Tensor | None
+    x0_i: torch.Tensor | None
     x0_j: torch.Tensor
     global_i: torch.Tensor  # rows into the concatenation of all objects' points
     global_j: torch.Tensor
@@ -624,10 +643,12 @@ class ImplicitEulerSolver:
         return np.where(swap, sel[:, 1], sel[:, 0]), np.where(swap, sel[:, 0], sel[:, 1])
 
     def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor],
-                      within_substep: bool = True) -> _PairSet:  # fmt: skip
+                      within_substep: bool = True, start_state: bool = True) -> _PairSet:  # fmt: skip
         """The pair set of a (sub)step from the members' candidate pairs (:meth:`_member_pairs`) and the
         current sphere positions (m); in a sub-step, only the pairs that can touch within it unless not
-        ``within_substep`` (all the step's candidates: they serve every sub-step)."""
+        ``within_substep`` (all the step's candidates: they serve every sub-step). Without ``start_state`` the
+        start data of side i and of the pair (``x0_i``, ``normal0``, ``lam_n``: None) are left to the caller,
+        as the fused sub-steps compute them in their launch; ``x0_j`` stays (a sleeping side j's positions)."""
         bp = self.broad_phase
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
         if len(gi) and self.h < self.dt and within_substep:
@@ -641,7 +662,10 @@ class ImplicitEulerSolver:
         mu = torch.from_numpy(friction[oi, oj])
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
         rs = bp.radii_all[gi_t] + bp.radii_all[gj_t]
-        x0i, x0j = x_all[gi_t], x_all[gj_t]
+        x0j = x_all[gj_t]
+        if not start_state:
+            return _PairSet(oi, li, oj, lj, k, rs, mu, None, None, None, x0j, gi_t, gj_t)
+        x0i = x_all[gi_t]
         if len(gi):  # the frozen normal force and normal of the start state
             depth, n0 = pair_depth(x0i, x0j, rs)
             lam = k * depth.clamp(min=0.0)
@@ -694,7 +718,8 @@ class ImplicitEulerSolver:
         return tm.reshape(n, 3, k), tmdot.reshape(n, 3, k)
 
     def _group_pairs(self, objects: list[int], slot_of: np.ndarray, ps: _PairSet) -> PairSet:
-        """The candidate pairs of a solve in solved-object slots (sleeping partners frozen)."""
+        """The candidate pairs of a solve in solved-object slots (sleeping partners frozen); without start data in
+        ``ps`` (``lam_n`` None) the pair set's start data are None too (left to the fused sub-steps' launch)."""
         obj_j = slot_of[ps.obj_j]
         frozen = obj_j < 0
         x_frozen = torch.zeros(len(obj_j), 3, dtype=DTYPE)
@@ -708,11 +733,11 @@ class ImplicitEulerSolver:
             frozen_x_j=x_frozen,
             stiffness_n_m=ps.stiffness_n_m,
             radius_sum_m=ps.radius_sum_m,
-            friction=ps.mu * (ps.lam_n > 0),
+            friction=None if ps.lam_n is None else ps.mu * (ps.lam_n > 0),
             normal_force_n=ps.lam_n,
             normal0=ps.normal0,
             x0_i=ps.x0_i,
-            x0_j=ps.x0_j,
+            x0_j=None if ps.lam_n is None else ps.x0_j,
         )
 
     def _solve_group(self, islands: list[list[int]], ps: _PairSet, h: float, stats: StepStats,
@@ -841,7 +866,8 @@ class ImplicitEulerSolver:
         for num_sub, group in parts:
             self.h = self.dt / num_sub
             members = [k for island in group for k in island]
-            ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, within_substep=False)
+            ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, within_substep=False,
+                                    start_state=False)  # fmt: skip
             part_pairs.append(ps)
             slots.append(torch.from_numpy(slot_of[members]))
             rows.append((p0, p0 + len(ps.obj_i)))
@@ -925,10 +951,10 @@ class ImplicitEulerSolver:
             supported[group_a[live]] = True
             sleeping_c = group_c[live][self.state.asleep[group_c[live]]]
             supported[sleeping_c] = True
+        supported[np.asarray(objects)[touching.any(0)]] = True
         for j in range(touching.shape[0]):  # sub-step by sub-step: scene contacts, then object pairs
-            for slot in np.flatnonzero(touching[j]):
-                supported[objects[slot]] = True
-                stats.add_pair_force((ids[slot], 0), total_np[j, slot], pos_np[j, slot], nrm_np[j, slot], h)
+            on = np.flatnonzero(touching[j])
+            stats.add_pair_forces([(ids[slot], 0) for slot in on], total_np[j, on], pos_np[j, on], nrm_np[j, on], h)
             g = np.flatnonzero(active[j])
             if len(g):
                 self._add_object_pair_statistics(group_a[g], group_c[g], pair_sums[j, g], stats)
@@ -1135,10 +1161,11 @@ class ImplicitEulerSolver:
         statistics keyed (smaller id, larger id), force and normal from the smaller id's side."""
         total, pos, nrm = sums[:, 0:3], sums[:, 3:6] / sums[:, 9:10], sums[:, 6:9]
         id_a, id_c = self._object_id[obj_a], self._object_id[obj_c]
-        for g in range(len(obj_a)):  # loop over object pairs: events are keyed (smaller id, larger id)
-            total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
-            key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
-            stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
+        flip = (id_a > id_c)[:, None]  # force and normal from the smaller id's side
+        total, nrm = np.where(flip, -total, total), np.where(flip, -nrm, nrm)
+        nrm = nrm / np.maximum(np.sqrt((nrm * nrm).sum(1)), 1e-300)[:, None]
+        keys = list(zip(np.minimum(id_a, id_c).tolist(), np.maximum(id_a, id_c).tolist()))  # (smaller, larger) id
+        stats.add_pair_forces(keys, total, pos, nrm, self.h)
 
 
     def _add_sphere_records(self, obj_a: np.ndarray, obj_c: np.ndarray, oi: np.ndarray, oj: np.ndarray,
@@ -1199,7 +1226,10 @@ def _concat_pair_sets(sets: list[_PairSet]) -> _PairSet:
     values = {}
     for f in fields(_PairSet):
         parts = [getattr(ps, f.name) for ps in sets]
-        values[f.name] = np.concatenate(parts) if isinstance(parts[0], np.ndarray) else torch.cat(parts)
+        if parts[0] is None:  # start data left to the launch (all or none of the sets have it)
+            values[f.name] = None
+        else:
+            values[f.name] = np.concatenate(parts) if isinstance(parts[0], np.ndarray) else torch.cat(parts)
     return _PairSet(**values)
 
 

@@ -535,10 +535,14 @@ class WarpContact:
             ints, vec, scal = self._pair_buffers
             for buffer, value in zip(ints, (pairs.obj_i, pairs.sph_i, pairs.obj_j, pairs.sph_j)):
                 buffer[:p].copy_(value)
-            for buffer, value in zip(vec, (pairs.frozen_x_j, pairs.normal0, pairs.x0_i, pairs.x0_j)):
+            start = pairs.normal0 is not None  # None: the fused sub-steps write them in their launch
+            vec_values = (pairs.frozen_x_j, pairs.normal0, pairs.x0_i, pairs.x0_j) if start else (pairs.frozen_x_j,)
+            for buffer, value in zip(vec, vec_values):
                 buffer[:p].copy_(value)
-            for buffer, value in zip(scal, (pairs.stiffness_n_m, pairs.radius_sum_m,
-                                            pairs.friction * pairs.normal_force_n)):  # fmt: skip
+            scal_values = (pairs.stiffness_n_m, pairs.radius_sum_m)
+            if start:
+                scal_values += (pairs.friction * pairs.normal_force_n,)
+            for buffer, value in zip(scal, scal_values):
                 buffer[:p].copy_(value)
             if self._pair is not None:
                 self._pair.set_dim(p)

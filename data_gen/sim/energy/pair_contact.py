@@ -34,6 +34,10 @@ class PairSet:
         stiffness_n_m, radius_sum_m, friction, normal_force_n: (P,) pair constants of the step.
         normal0: (P, 3) unit normal j -> i at the start of the step.
         x0_i, x0_j: (P, 3) m positions at the start of the step.
+
+    ``friction``, ``normal_force_n``, ``normal0``, ``x0_i`` and ``x0_j`` (the start data) are None in a pair set
+    for :meth:`data_gen.sim.fused_newton.FusedNewton.solve_substeps`, which computes them at the start of each
+    sub-step in its launch; every other user needs them.
     """
 
     obj_i: torch.Tensor
@@ -43,11 +47,11 @@ class PairSet:
     frozen_x_j: torch.Tensor
     stiffness_n_m: torch.Tensor
     radius_sum_m: torch.Tensor
-    friction: torch.Tensor
-    normal_force_n: torch.Tensor
-    normal0: torch.Tensor
-    x0_i: torch.Tensor
-    x0_j: torch.Tensor
+    friction: torch.Tensor | None
+    normal_force_n: torch.Tensor | None
+    normal0: torch.Tensor | None
+    x0_i: torch.Tensor | None
+    x0_j: torch.Tensor | None
 
     @property
     def num_pairs(self) -> int:
