@@ -201,25 +201,6 @@ class StepStats:
         if magnitude > entry["peak_force_n"]:
             entry.update(peak_force_n=magnitude, position_m=position_m, normal=normal)
 
-    def add_pair_forces(
-        self,
-        keys: list[tuple[int, int]],
-        forces_n: np.ndarray,
-        positions_m: np.ndarray,
-        normals: np.ndarray,
-        h_s: float,
-    ) -> None:
-        """:meth:`add_pair_force` of several pairs in order: ``keys``, forces (m, 3) N, positions (m, 3) m and
-        normals (m, 3); the magnitudes taken at once (the same values: |f| = sqrt(f . f) either way)."""
-        magnitudes = np.sqrt((forces_n * forces_n).sum(1)).tolist()
-        for key, magnitude, position_m, normal in zip(keys, magnitudes, positions_m, normals):  # loop over pairs
-            entry = self.pair_forces.setdefault(
-                key, {"impulse_n_s": 0.0, "peak_force_n": -1.0, "position_m": position_m, "normal": normal}
-            )
-            entry["impulse_n_s"] += magnitude * h_s
-            if magnitude > entry["peak_force_n"]:
-                entry.update(peak_force_n=magnitude, position_m=position_m, normal=normal)
-
 
 @dataclass
 class _PairSet:
@@ -951,10 +932,10 @@ class ImplicitEulerSolver:
             supported[group_a[live]] = True
             sleeping_c = group_c[live][self.state.asleep[group_c[live]]]
             supported[sleeping_c] = True
-        supported[np.asarray(objects)[touching.any(0)]] = True
         for j in range(touching.shape[0]):  # sub-step by sub-step: scene contacts, then object pairs
-            on = np.flatnonzero(touching[j])
-            stats.add_pair_forces([(ids[slot], 0) for slot in on], total_np[j, on], pos_np[j, on], nrm_np[j, on], h)
+            for slot in np.flatnonzero(touching[j]):
+                supported[objects[slot]] = True
+                stats.add_pair_force((ids[slot], 0), total_np[j, slot], pos_np[j, slot], nrm_np[j, slot], h)
             g = np.flatnonzero(active[j])
             if len(g):
                 self._add_object_pair_statistics(group_a[g], group_c[g], pair_sums[j, g], stats)
@@ -1161,11 +1142,10 @@ class ImplicitEulerSolver:
         statistics keyed (smaller id, larger id), force and normal from the smaller id's side."""
         total, pos, nrm = sums[:, 0:3], sums[:, 3:6] / sums[:, 9:10], sums[:, 6:9]
         id_a, id_c = self._object_id[obj_a], self._object_id[obj_c]
-        flip = (id_a > id_c)[:, None]  # force and normal from the smaller id's side
-        total, nrm = np.where(flip, -total, total), np.where(flip, -nrm, nrm)
-        nrm = nrm / np.maximum(np.sqrt((nrm * nrm).sum(1)), 1e-300)[:, None]
-        keys = list(zip(np.minimum(id_a, id_c).tolist(), np.maximum(id_a, id_c).tolist()))  # (smaller, larger) id
-        stats.add_pair_forces(keys, total, pos, nrm, self.h)
+        for g in range(len(obj_a)):  # loop over object pairs: events are keyed (smaller id, larger id)
+            total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
+            key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
+            stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
 
 
     def _add_sphere_records(self, obj_a: np.ndarray, obj_c: np.ndarray, oi: np.ndarray, oj: np.ndarray,
