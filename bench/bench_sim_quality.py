@@ -16,6 +16,8 @@ reference runs measure how well the outcome is determined at all:
   geometry: spheres of radius r round edges and corners by about r, and where a tumbling object lands
   on an edge decides its bounce).
 A preset whose error is near these floors is as accurate as the scene allows this comparison to show.
+One more row, ``draft_exact_matrix``, is ``draft`` with ``lagged_elastic_hessian=False``: the time and error
+of the lagged elastic Newton matrix against the exact one, side by side.
 
 Scenes with several variants (``SCENE_VARIANTS``: the rigid drop is repeated with 5 spins and
 orientations) report the mean over variants, with the per-variant errors in the JSON.
@@ -45,6 +47,8 @@ from data_gen.sim.world import Simulator  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PRESETS = ["draft", "standard", "high", "reference"]
+# draft as it would run with an exact elastic Newton matrix at every iteration (``lagged_elastic_hessian=False``)
+EXACT_DRAFT = "draft_exact_matrix"
 FPS = 25.0
 GRAVITY = (0.0, 0.0, -9.81)
 
@@ -170,13 +174,16 @@ def main() -> None:
                 scene_name, ref, seconds, training, seed=1, label="reference_seed1", variant=variant
             )
             runs[contact_name] = run_one(scene_name, contact_ref, seconds, training, label=contact_name, variant=variant)
+            # the lagged elastic matrix's trade: draft with the exact matrix at every Newton iteration
+            runs[EXACT_DRAFT] = run_one(scene_name, presets["draft"].replace(lagged_elastic_hessian=False), seconds,
+                                        training, label=EXACT_DRAFT, variant=variant)  # fmt: skip
             for name, run in runs.items():
                 row = {k: v for k, v in run.items() if not k.startswith("_")}
                 row.update(compare(run, runs["reference"]))
                 row["speedup_vs_reference"] = runs["reference"]["wall_s"] / run["wall_s"]
                 per_variant.setdefault(name, []).append(row)
         merged = {name: _mean_over_variants(variant_rows) for name, variant_rows in per_variant.items()}
-        for name in PRESETS + [floor_name, "reference_seed1", contact_name]:
+        for name in PRESETS + [floor_name, "reference_seed1", contact_name, EXACT_DRAFT]:
             row = merged[name]
             row["speedup_vs_reference"] = merged["reference"]["wall_s"] / row["wall_s"]
             rows.append(row)

@@ -19,6 +19,9 @@ class QualityPreset:
     ``dt_s = 1 / (fps * substeps_per_frame)``; contact stiffness per contact sphere is
     ``contact_stiffness_factor * object_mass_kg / dt_s**2`` (N/m).  ``num_contact_points`` is the
     number of surface contact spheres per object (used when the object comes with surface samples).
+    ``lagged_elastic_hessian``: a soft object's elastic Newton matrix is formed once per (sub)step and kept for
+    its later iterations (modified Newton, :class:`data_gen.sim.step_objective.StepObjective`), instead of at
+    every iteration.
     """
 
     name: str
@@ -35,6 +38,7 @@ class QualityPreset:
     skinning_training_steps: int
     sleep_speed_m_s: float
     sleep_steps: int
+    lagged_elastic_hessian: bool = False
 
     def __post_init__(self) -> None:
         positive_ints = (
@@ -55,6 +59,10 @@ class QualityPreset:
             value = getattr(self, key)
             if not value > 0:
                 raise ValueError(f"preset {self.name!r}: {key}={value!r} must be > 0")
+        if not isinstance(self.lagged_elastic_hessian, bool):
+            raise ValueError(
+                f"preset {self.name!r}: lagged_elastic_hessian={self.lagged_elastic_hessian!r} must be true or false"
+            )
         if self.sleep_speed_m_s < 0:
             raise ValueError(f"preset {self.name!r}: sleep_speed_m_s={self.sleep_speed_m_s!r} must be >= 0")
         if self.skinning_training_steps < 0:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch
 
 from data_gen.sim.energy.contact_kernels import WarpContact
-from data_gen.sim.energy.elastic import elastic_from_points
+from data_gen.sim.energy.elastic import elastic_from_points, elastic_gradient
 from data_gen.sim.energy.elastic_kernel import WarpNeoHookean
 from data_gen.sim.energy.gravity import gravity
 from data_gen.sim.energy.inertia import inertia
@@ -112,7 +112,15 @@ def rigid_fused_workspace(model: Model, layout: DofLayout, scene: SceneDistance)
 class StepObjective(Objective):
     """Objective, gradient and Newton matrix of one (sub)step, per island (see the module docstring).
 
-    ``workspace`` is the :class:`SolveWorkspace` of ``model`` and ``layout`` (built here when omitted)."""
+    ``workspace`` is the :class:`SolveWorkspace` of ``model`` and ``layout`` (built here when omitted).
+
+    With ``lagged_elastic_hessian`` the objects of more than one handle keep the elastic part of the Newton
+    matrix formed at this objective's first evaluation with derivatives (or at its latest one with projected
+    blocks) for every later evaluation; their energies and gradients stay exact. Newton's method becomes a
+    modified Newton method: the same minimum and convergence test, each iteration without the per-point
+    9 x 9 Hessians and their reduction, which cost most of a soft object's evaluation. One objective serves one
+    (sub)step, so every step starts from a fresh matrix. One-handle objects always get theirs formed (it is
+    one point's: nothing to save)."""
 
     def __init__(
         self,
@@ -127,8 +135,11 @@ class StepObjective(Objective):
         smoothing_m: float,
         pairs: PairSet,
         workspace: SolveWorkspace | None = None,
+        lagged_elastic_hessian: bool = False,
     ) -> None:
         self.model, self.layout, self.scene, self.pairs = model, layout, scene, pairs
+        self.lagged_elastic_hessian = lagged_elastic_hessian
+        self._kept_elastic_hessian: dict[int, torch.Tensor] = {}  # per elastic group (lagged_elastic_hessian)
         self.gravity = gravity_m_s2
         self.h, self.h2 = h_s, h_s * h_s
         self.tm_n = tm_n
@@ -216,21 +227,34 @@ class StepObjective(Objective):
         m = self.model
         n, k = tm.shape[0], m.columns
         if len(self.elastic_groups) == 1 and len(self.elastic_groups[0][0]) == n:  # one group: every object in order
-            _, cub_c, points = self.elastic_groups[0]
-            energy, piola, hess, _ = points.evaluate(tm, derivatives, strict)
-            return elastic_from_points(cub_c, energy, piola, hess if derivatives else None)
+            return self._group_elastic(0, tm, derivatives, strict)
         out = ObjectTerms(
             torch.zeros(n, dtype=DTYPE),
             torch.zeros(n, 3, k, dtype=DTYPE) if derivatives else None,
             torch.zeros(n, 3 * k, 3 * k, dtype=DTYPE) if derivatives else None,
         )
-        for idx, cub_c, points in self.elastic_groups:  # at most two groups: rigid and deformable
-            energy, piola, hess, _ = points.evaluate(tm[idx], derivatives, None if strict is None else strict[idx])
-            part = elastic_from_points(cub_c, energy, piola, hess if derivatives else None)
+        for g, (idx, _, _) in enumerate(self.elastic_groups):  # at most two groups: rigid and deformable
+            part = self._group_elastic(g, tm[idx], derivatives, None if strict is None else strict[idx])
             out.energy[idx] = part.energy
             if derivatives:
                 out.grad[idx] = part.grad
                 out.hess[idx] = part.hess
+        return out
+
+    def _group_elastic(self, g: int, tm: torch.Tensor, derivatives: bool, strict: torch.Tensor | None) -> ObjectTerms:
+        """Elastic terms of elastic group ``g`` at its objects' states ``tm``; with ``lagged_elastic_hessian``
+        and a deformable group, the kept matrix after the first evaluation with derivatives (a projected
+        evaluation, ``strict`` given, forms and keeps a new one)."""
+        _, cub_c, points = self.elastic_groups[g]
+        lag = self.lagged_elastic_hessian and derivatives and cub_c.shape[1] > 1  # one-handle groups: one point
+        kept = self._kept_elastic_hessian.get(g) if lag and strict is None else None
+        if kept is not None:
+            energy, piola, _, _ = points.evaluate(tm, False)
+            return ObjectTerms(energy.sum(1), elastic_gradient(cub_c, piola), kept)
+        energy, piola, hess, _ = points.evaluate(tm, derivatives, strict)
+        out = elastic_from_points(cub_c, energy, piola, hess if derivatives else None)
+        if lag:
+            self._kept_elastic_hessian[g] = out.hess
         return out
 
     def forces(self, tm: torch.Tensor) -> ContactForces:

@@ -62,12 +62,17 @@ def elastic_from_points(
     return ObjectTerms(energy, *_reduce(cub_c, piola, hess))
 
 
+def elastic_gradient(cub_c: torch.Tensor, piola: torch.Tensor) -> torch.Tensor:
+    """Gradient (n, 3, K) from volume-weighted Piola stresses (n, P, 3, 3) with bases (n, P, K, 3):
+    ``grad[r, a] = sum_i sum_j P_i[r, j] C_i[a, j]``."""
+    return torch.einsum("nprj,npaj->nra", piola, cub_c)
+
+
 def _reduce(cub_c: torch.Tensor, piola: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Gradient (n, 3, K) and Hessian (n, 3K, 3K) from volume-weighted Piola stresses (n, P, 3, 3) and
     point Hessians (n, P, 9, 9) with bases (n, P, K, 3)."""
     n, p, k, _ = cub_c.shape
-    # grad[r, a] = sum_i sum_j P_i[r, j] C_i[a, j]
-    grad = torch.einsum("nprj,npaj->nra", piola, cub_c)
+    grad = elastic_gradient(cub_c, piola)
     # K[r, a, s, b] = sum_i sum_j C_i[a, j] (sum_k H_i[(r, j), (s, k)] C_i[b, k]): the small per-point H is
     # reordered to (j, r, s, k) so that the inner product comes out as [(i j), (r s b)] without a copy
     h_jrs = h.reshape(n, p, 3, 3, 3, 3).transpose(2, 3).reshape(n * p, 27, 3)
@@ -101,4 +106,4 @@ def _project(h: torch.Tensor, tolerance_pa: torch.Tensor, strict: torch.Tensor |
     return h
 
 
-__all__ = ["elastic", "elastic_from_points", "deformation_gradients", "neo_hookean_hessian", "neo_hookean_hessian_batched"]
+__all__ = ["elastic", "elastic_from_points", "elastic_gradient", "deformation_gradients", "neo_hookean_hessian", "neo_hookean_hessian_batched"]
