@@ -258,6 +258,11 @@ def plot(rows: list[dict], path: Path) -> None:
         ]
         if floors:  # the larger of the discretisation floors (seed, contact geometry)
             ax.axhline(100 * max(max(floors), 1e-6), color=line.get_color(), lw=0.8, ls=":")
+        for r in rows:  # draft with the exact elastic matrix: a hollow marker beside draft
+            if r["scene"] == scene and r["preset"] == EXACT_DRAFT:
+                xy = (r["wall_per_sim_s"], 100 * max(r["com_rms_rel_travelled"], 1e-6))
+                ax.plot(*xy, "o", mfc="none", color=line.get_color())
+                ax.annotate("draft, exact matrix", xy, fontsize=7)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("wall time per simulated second (s, 1 CPU thread)")
