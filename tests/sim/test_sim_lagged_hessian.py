@@ -88,9 +88,10 @@ def test_lagged_newton_reaches_the_step_of_exact_newton():
     assert exact_its <= lagged_its <= 2 * exact_its
 
 
-def test_only_draft_lags_the_elastic_matrix():
-    """What the shipped presets choose (README, "Quality presets"): draft trades exact Newton matrices for
-    time; standard, high and the reference keep them."""
+def test_every_preset_but_the_reference_lags_the_elastic_matrix():
+    """What the shipped presets choose (README, "Lagged elastic matrix"): draft, standard and high keep a soft
+    object's elastic matrix through a step (measured: the same errors against the reference); the reference,
+    the yardstick of those measurements, forms it at every iteration."""
     assert {name: load_preset(name).lagged_elastic_hessian for name in available_presets()} == {
-        "draft": True, "high": False, "reference": False, "standard": False,
+        "draft": True, "high": True, "reference": False, "standard": True,
     }
