@@ -7,7 +7,9 @@ The formulas are those of :mod:`data_gen.sim.energy.point_terms` (the batched-to
   Hessian ``k n n^T``;
 * friction ``mu lam f(|u_t|)`` on the tangential slip ``u_t`` with the normal force ``lam`` and normal
   frozen at the start of the (sub)step, ``f(s) = s^2 / (2 eps)`` below ``eps`` and ``s - eps/2`` above,
-  gradient ``mu lam / max(s, eps) u_t``, Hessian ``mu lam / max(s, eps) (I - n n^T)``.
+  gradient ``mu lam / max(s, eps) u_t``, Newton matrix ``mu lam / max(s, eps) (I - n n^T)`` less, when
+  sliding (``s >= eps``), ``mu lam / s (1 - eps / s)`` along the slip (the curvature there is
+  ``mu lam eps / s^2``: see :func:`data_gen.sim.energy.point_terms.friction`).
 
 One thread per contact sphere (scene) or per candidate sphere pair (pair). A sphere or pair that neither
 penetrates nor carries a frozen normal force contributes exactly nothing and returns at once: on a pile
@@ -65,6 +67,8 @@ def _friction(slip: wp.vec3d, normal: wp.vec3d, scale: wp.float64, smoothing_m: 
         energy = scale * (s - wp.float64(0.5) * smoothing_m)
     ratio = scale / wp.max(s, smoothing_m)
     hess = ratio * (wp.identity(n=3, dtype=wp.float64) - wp.outer(normal, normal))
+    if s >= smoothing_m:  # sliding: along the slip, the curvature mu lam eps / s^2 (point_terms.friction)
+        hess = hess - (ratio * (wp.float64(1.0) - smoothing_m / s) / (s * s)) * wp.outer(u, u)
     return energy, ratio * u, hess
 
 
