@@ -9,7 +9,7 @@ the exact curvature is 0, and the matrix's ``mu lam eps / s^2`` goes from the st
 matrix is continuous there) to the exact 0 far into sliding. The old secant ``mu lam / s`` along ``t`` made
 Newton's steps on sliding contacts converge only linearly (ratio about 0.8 per iteration on a soft pile);
 the exact 0 lets a step overshoot from sliding into sticking (more line-search halvings). See
-``README.md``, "Newton iterations".
+``README.md``, "The friction matrix".
 """
 
 from __future__ import annotations
