@@ -140,6 +140,7 @@ class StepObjective(Objective):
         self.model, self.layout, self.scene, self.pairs = model, layout, scene, pairs
         self.lagged_elastic_hessian = lagged_elastic_hessian
         self._kept_elastic_hessian: dict[int, torch.Tensor] = {}  # per elastic group (lagged_elastic_hessian)
+        self._base: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # (M, K, M + h^2 K assembled)
         self.gravity = gravity_m_s2
         self.h, self.h2 = h_s, h_s * h_s
         self.tm_n = tm_n
@@ -218,9 +219,20 @@ class StepObjective(Objective):
         if not derivatives:
             return Evaluation(value)
         grad = self.layout.to_islands(it.grad + self.h2 * (el.grad + gr.grad)) + contact.grad
-        matrix = self.layout.assemble(it.hess + self.h2 * el.hess).add_(contact.hess)  # contact: h^2 already
-        matrix.diagonal(dim1=1, dim2=2).add_(self.padding)
-        return Evaluation(value, grad, matrix)
+        return Evaluation(value, grad, torch.add(self._base_matrix(it.hess, el.hess), contact.hess))  # contact: h^2
+
+    def _base_matrix(self, inertia_hess: torch.Tensor, elastic_hess: torch.Tensor) -> torch.Tensor:
+        """The island matrices of inertia and elasticity (``M + h^2 K``, identity rows on padding), read only.
+        Kept while both blocks are the same tensors: with ``lagged_elastic_hessian`` and only soft objects the
+        elastic blocks are the kept ones and the mass matrix is constant, so a step assembles them once.
+        (Padding adds 1 where every other term is 0, so adding it before the contact matrix is exact.)"""
+        cached = self._base
+        if cached is not None and cached[0] is inertia_hess and cached[1] is elastic_hess:
+            return cached[2]
+        base = self.layout.assemble(inertia_hess + self.h2 * elastic_hess)
+        base.diagonal(dim1=1, dim2=2).add_(self.padding)
+        self._base = (inertia_hess, elastic_hess, base)
+        return base
 
     def _elastic(self, tm: torch.Tensor, derivatives: bool, strict: torch.Tensor | None) -> ObjectTerms:
         """Elastic terms of all objects, evaluated per group of equal cubature width."""
