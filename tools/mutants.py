@@ -329,6 +329,10 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("newton_trust_radius_ignored", "data_gen/sim/newton.py",
            "alpha = torch.clamp(trust_m / motion.clamp(min=1e-300), max=1.0)",
            "alpha = torch.ones_like(motion)"),
+    Mutant("vqa_letters_seeded_start_only", "data_gen/vqa/generator.py",
+           "if best is None or score < best[0]:",
+           "if best is None:",
+           tests=("tests/data_gen/test_vqa_generation.py::test_letters_are_balanced_per_question_id_and_over_the_set_despite_forced_count_answers",)),
     # --- VLM scoring -------------------------------------------------------------------------------
     Mutant("vlm_bootstrap_resamples_items", "probes/vlm/scoring.py",
            "            r.item.sequence_id,\n            r.item.question_id,\n            r.item.sub_category,\n"

@@ -3,7 +3,7 @@
 Per sequence (in parallel, resumable): pick question frames, run every question function in each of its
 modes, write the frames the items show as PNGs and the raw questions to ``parts/<sequence_id>.json``
 (atomically: a finished part is skipped on a re-run). Then, in one pass over all parts in a fixed order:
-assign the correct option's letter (balanced per question id), write ``questions.jsonl``,
+assign the correct option's letter (balanced per question id and over the set), write ``questions.jsonl``,
 ``answers.jsonl`` and ``manifest.json``. Same shards + config + seed => byte-identical files.
 """
 
@@ -273,19 +273,52 @@ def list_jobs(cfg: VqaConfig) -> list[SequenceJob]:
 
 
 def assign_letters(records: list[dict[str, Any]]) -> dict[str, int]:
-    """pair -> position (0-3) of the correct option: per question id, pairs in their SHA-256 order take the
-    positions in turn, so every id's letters are balanced to within one pair. Records of a variant that keeps
+    """pair -> position (0-3) of the correct option, balanced per question id and over the whole set.
+
+    Per question id the pairs, in their SHA-256 order, take consecutive positions from a start, so every id's
+    letters are balanced to within one pair. Each id's start keeps the set's letter counts as even as
+    possible (the smallest sum of squared counts; ties go to the start seeded by the id); a pair counts once
+    per item showing its letter (single, multi, the variants that keep it). Ids whose positions are partly
+    forced go first: a count question's window of consecutive integers cannot start below 0, so an answer
+    ``v < 3`` can only sit at positions ``0..v`` (:func:`integer_window`). Records of a variant that keeps
     its base question's letters (``letter_pair``) take no position of their own."""
-    by_qid: dict[str, dict[str, int]] = defaultdict(dict)
+    by_qid: dict[str, dict[str, dict[str, Any]]] = defaultdict(dict)
+    weight: Counter[str] = Counter()  # items showing each pair's letter (single, multi, the variants keeping it)
     for r in records:
+        weight[r.get("letter_pair", r["pair"])] += 1
         if r.get("letter_pair", r["pair"]) == r["pair"]:  # variants of a question take its letters
-            by_qid[r["question_id"]][r["pair"]] = r["order_key"]
+            by_qid[r["question_id"]][r["pair"]] = r
+    n = len(vs.LETTERS)
+
+    def landed(record: dict[str, Any], position: int) -> int:
+        """Where the answer lands when ``position`` is asked for."""
+        if record["meta"].get("ordered_integer_options"):
+            value = int(record["value"])
+            return integer_window(value, position).index(value)
+        return position
+
+    def forced(qid: str) -> bool:
+        return any(landed(r, p) != p for r in by_qid[qid].values() for p in range(n))
+
+    counts = [0] * n
     positions: dict[str, int] = {}
-    for qid in sorted(by_qid):
-        pairs = sorted(by_qid[qid], key=lambda p: (by_qid[qid][p], p))
-        offset = seed_of(qid) % len(vs.LETTERS)
-        for k, pair in enumerate(pairs):
-            positions[pair] = (k + offset) % len(vs.LETTERS)
+    for qid in sorted(by_qid, key=lambda q: (not forced(q), q)):
+        pairs = sorted(by_qid[qid], key=lambda p: (by_qid[qid][p]["order_key"], p))
+        seeded = seed_of(qid) % n
+        best: tuple[int, int, list[int]] | None = None
+        for shift in range(n):  # starts in the seeded order: ties keep the earliest
+            start = (seeded + shift) % n
+            asked = [(start + k) % n for k in range(len(pairs))]
+            after = list(counts)
+            for pair, position in zip(pairs, asked):
+                after[landed(by_qid[qid][pair], position)] += weight[pair]
+            score = sum(c * c for c in after)
+            if best is None or score < best[0]:
+                best = (score, start, asked)
+        assert best is not None
+        for pair, position in zip(pairs, best[2]):
+            positions[pair] = position
+            counts[landed(by_qid[qid][pair], position)] += weight[pair]
     return positions
 
 

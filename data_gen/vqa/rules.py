@@ -4,9 +4,9 @@
   |x| < 1); candidates ``x (j + s) / s`` for j in -3..3, j != 0, kept when inside the question's range and
   above 0.04; three kept; fixed values when |x| < 0.04. Young's modulus: ``x 10^k``, k = +-1..+-5, above 1e4 Pa.
 * Name distractors: other visible objects of the scene first, then names from the object library.
-* Letters: the correct option's position is assigned over the whole set (balanced per question id, in the
-  order of a SHA-256 of seed, sequence, question key and frame), identical for the single and multi
-  versions of a question; the distractors keep a seeded order.
+* Letters: the correct option's position is assigned over the whole set (balanced per question id and over
+  the set, each id's pairs in the order of a SHA-256 of seed, sequence, question key and frame), identical for
+  the single and multi versions of a question; the distractors keep a seeded order.
 """
 
 from __future__ import annotations

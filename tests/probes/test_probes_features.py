@@ -120,7 +120,10 @@ def test_entry_with_mismatching_stored_key_is_rebuilt_not_reused(split_dir: Path
     item = ds[0]
     assert bb.frames_seen == 1  # only the stale frame was recomputed
     for got, want in zip(item["features"], good):
-        assert torch.equal(got[0], want)
+        # recomputed alone, the frame goes through the backbone in a batch of one instead of the fill's batch:
+        # float32 sums in another order can move a float16 entry by one unit in its last place (6e-5 here)
+        assert not bool((got[0] == 7.0).any())  # none of the poisoned values is served
+        torch.testing.assert_close(got[0], want, rtol=2e-3, atol=1e-4)
     assert ds.cache.load(fid) is not None  # overwritten with a valid entry
 
 
