@@ -166,6 +166,12 @@ class SimBody:
         self._positions_cache = (q, q._version, x)
         return x
 
+    def cache_contact_positions(self, q: torch.Tensor, x_m: torch.Tensor) -> torch.Tensor:
+        """Keep ``x_m`` (k,3) m, computed elsewhere as :meth:`contact_positions` computes it (a batched solve's
+        result), as the sphere centres of ``q``; returns it."""
+        self._positions_cache = (q, q._version, x_m)
+        return x_m
+
     def cubature_contact(self) -> tuple[torch.Tensor, torch.Tensor]:
         """This step's contact force (n,3) N and dominant partner (n,) per cubature point."""
         return self.contact.to_cubature(
@@ -888,10 +894,17 @@ class ImplicitEulerSolver:
         qdot = result.tmdot.reshape(-1)[setup.padded]
         if not bool(torch.isfinite(q).all()):
             self._check_finite(objects, list(q.split(setup.sizes)), "reduced state q")
-        for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per launch
+        # every object's sphere centres and velocities at once (one-handle objects: (S, 4) basis rows each),
+        # left in the bodies' and the solver's caches as contact_positions / _sphere_velocities would compute them
+        x_all = model.sphere_rest_m + torch.bmm(model.sphere_b, result.tm.transpose(1, 2))  # (n, S, 3) m
+        v_all = torch.bmm(model.sphere_b, result.tmdot.transpose(1, 2))  # (n, S, 3) m/s (padded rows: 0)
+        speeds = v_all.norm(dim=2).amax(1).tolist()  # fastest sphere per object, m/s
+        for slot, (o, q_o, qdot_o) in enumerate(zip(objects, q.split(setup.sizes), qdot.split(setup.sizes))):
             self.state.q[o] = q_o
             self.state.qdot[o] = qdot_o
-            positions[o] = self.bodies[o].contact_positions(q_o)
+            k = self.bodies[o].contact.num_points
+            positions[o] = self.bodies[o].cache_contact_positions(q_o, x_all[slot, :k])
+            self._velocity_cache[o] = (qdot_o, qdot_o._version, v_all[slot, :k], speeds[slot])
 
         def record(num_sub: int, part_ps: _PairSet, part_slots: torch.Tensor, row_range: tuple[int, int],
                    group_range: tuple[int, int], part_groups: tuple[np.ndarray, np.ndarray]) -> None:  # fmt: skip
