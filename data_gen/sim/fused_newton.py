@@ -1161,6 +1161,7 @@ class FusedNewton:
         self._step.moved = _wp(self.moved)
         self._step.start_v = _wp(self.start_v, wp.vec3d)
         self._pair_capacity = -1
+        self._gravity_key: tuple[torch.Tensor, int] | None = None  # the gravity tensor (and version) bound last
         self._substeps: Substeps | None = None
         self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
@@ -1260,9 +1261,12 @@ class FusedNewton:
             self.pair_gap = torch.full_like(self.pair_mu, -1.0)  # -1: always evaluated
             st.pair_gap = _wp(self.pair_gap)
             self._substeps = None  # (re)bound to the new pair buffers on next use
-        g = gravity_m_s2.tolist()
-        st.gravity = wp.vec3d(g[0], g[1], g[2])
-        self._gravity_norm = float(gravity_m_s2.norm())
+        key = (gravity_m_s2, gravity_m_s2._version)  # the solver passes the same tensor every step
+        if self._gravity_key is None or self._gravity_key[0] is not key[0] or self._gravity_key[1] != key[1]:
+            g = gravity_m_s2.tolist()
+            st.gravity = wp.vec3d(g[0], g[1], g[2])
+            self._gravity_norm = float(gravity_m_s2.norm())
+            self._gravity_key = key
         self.h2.fill_(h2)
         self.smoothing.fill_(c.smoothing_m)
         p = int(c.num_pairs)
