@@ -67,6 +67,8 @@ _ONE = wp.constant(wp.float64(1.0))
 STATUS, ITERATIONS, CONVERGED, EVALUATIONS, EVALUATIONS_WITH_DERIVATIVES = 0, 1, 2, 3, 4
 LINE_SEARCH_FAILURES, LINE_SEARCH_EXTENDED, TRUST_LIMITED = 5, 6, 7
 NUM_STATS = 8
+# ``derivatives`` of _evaluate: the gradient and only the contact part of the Newton matrix
+CONTACT_MATRIX_ONLY = wp.constant(2)
 # STATUS values
 SOLVED, NEEDS_FALLBACK = 0, 1
 
@@ -371,6 +373,10 @@ def _evaluate(
     matrix are written into the island's part of ``grad`` / ``hess`` (elastic blocks failing the near-SPD
     test projected, as :class:`StepObjective` does). Returns (value, 1 if such a block was met else 0).
 
+    ``derivatives``: 0 the value only; 1 the gradient and the whole matrix; :data:`CONTACT_MATRIX_ONLY` the
+    gradient and the contact part of the matrix only (no inertia, elastic or padding entries: the caller adds
+    its kept ``M + h^2 K``, :meth:`FusedNewton.evaluate_bound`).
+
     ``band`` (n, 2): the island-local columns [lo, hi) that object o's rows hold, its own and those of the
     objects an active pair couples it to. The matrix is cleared only there (what the previous evaluation
     wrote: everything else is still zero) and the band is rebuilt here for the factorisation's envelope."""
@@ -391,8 +397,9 @@ def _evaluate(
                     hess[base + r * n_size + c] = _ZERO
             band[o, 0] = first_dof
             band[o, 1] = end_dof
-        for r in range(bd.island_dofs[isl], n_size):  # padding: identity rows (nothing else is written there)
-            hess[base + r * n_size + r] = _ONE
+        if derivatives == 1:
+            for r in range(bd.island_dofs[isl], n_size):  # padding: identity rows (nothing else is written there)
+                hess[base + r * n_size + r] = _ONE
     h2 = st.h2[isl]
     value = _ZERO
     flagged = int(0)
@@ -414,6 +421,8 @@ def _evaluate(
                 if derivatives != 0:
                     fr = bd.flat_index[o, row]
                     grad[fr] = grad[fr] + m_d - h2 * st.gravity[r] * bd.mass_b_sum[o, a]
+                if derivatives == 1:
+                    fr = bd.flat_index[o, row]
                     base = fr * n_size - isl * n_size
                     for s in range(s_lo, s_hi):
                         for c in range(cols):
@@ -424,9 +433,18 @@ def _evaluate(
             v = bd.cub_volume[o, i]
             if v != _ZERO:
                 f = deformation_gradient(tm, bd.cub_c, o, i, cols)
-                psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], derivatives)
+                psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], wp.where(derivatives == 1, 1, 0))
                 value = value + h2 * v * psi
-                if derivatives != 0:
+                if derivatives == CONTACT_MATRIX_ONLY:  # the elastic gradient w P C^T only
+                    w = h2 * v
+                    for r in range(3):
+                        for a in range(cols):
+                            fr = bd.flat_index[o, r * kp + a]
+                            g_ra = _ZERO
+                            for j in range(3):
+                                g_ra = g_ra + piola[r, j] * bd.cub_c[o, i, a, j]
+                            grad[fr] = grad[fr] + w * g_ra
+                if derivatives == 1:
                     if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:  # as StepObjective: projected
                         flagged = int(1)
                         h9 = projected_neo_hookean_hessian(f, bd.mu_pa[o], bd.lam_pa[o])
@@ -1163,6 +1181,11 @@ class FusedNewton:
         self._pair_capacity = -1
         self._gravity_key: tuple[torch.Tensor, int] | None = None  # the gravity tensor (and version) bound last
         self._substeps: Substeps | None = None
+        self._bound_objective: StepObjective | None = None  # evaluate_bound: the objective whose step is bound
+        self._bound_step: StepData | None = None
+        self._value = torch.zeros(layout.num_islands, dtype=model.mass_kg.dtype, device=model.mass_kg.device)
+        self._flagged = torch.zeros(layout.num_islands, dtype=torch.int32, device=model.mass_kg.device)
+        self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
         self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
         self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)
@@ -1302,6 +1325,27 @@ class FusedNewton:
         if not derivatives:
             return value, None, None, flagged.bool()
         return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size).clone(), flagged.bool()
+
+    def evaluate_bound(self, objective: StepObjective, q: torch.Tensor,
+                       derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:  # fmt: skip
+        """``objective`` per island (n_isl,) at ``q`` (n_isl, N) in one launch; with ``derivatives`` the gradient
+        (n_isl, N) (a copy) and the contact part of the matrix (n_isl, N, N) (a view of this workspace's buffer,
+        overwritten by the next evaluation; :data:`CONTACT_MATRIX_ONLY`): what :meth:`StepObjective.evaluate`
+        adds to its kept ``M + h^2 K``. The step's data are bound once per objective (its contact buffers are
+        this workspace's, prepared by its constructor)."""
+        n_isl, size = self.shape
+        if self._bound_objective is not objective:
+            self._bound_step = self._step_data(objective)
+            self._bound_objective = objective
+        self.q.copy_(q.reshape(-1))
+        mode = CONTACT_MATRIX_ONLY if derivatives else 0
+        wp.launch(evaluate_islands_kernel, dim=n_isl, device=self.device, inputs=[
+            self.bodies, self.scene, self._bound_step, self.work, int(mode), self._value_wp, self._flagged_wp,
+        ])  # fmt: skip
+        value = self._value.clone()
+        if not derivatives:
+            return value, None, None
+        return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size)
 
     def solve(self, objective: StepObjective, q0: torch.Tensor, scale: torch.Tensor | None,
               trust_m: torch.Tensor | None, settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip

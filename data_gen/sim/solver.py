@@ -740,7 +740,7 @@ class ImplicitEulerSolver:
             model, layout, self.scene_distance, self.gravity, tm_n, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
             self._group_pairs(objects, slot_of, ps), setup.objective_workspace(self.scene_distance),
-            lagged_elastic_hessian=self.preset.lagged_elastic_hessian,
+            lagged_elastic_hessian=self.preset.lagged_elastic_hessian, kernel_evaluation=self.fused_newton,
         )  # fmt: skip
 
         def check_gradient(grad: torch.Tensor) -> None:

@@ -78,6 +78,24 @@ class SolveWorkspace:
             if bool(rigid.all()) and fused_fits(layout)
             else None
         )
+        # islands of deformable objects only, on CPU: the objective's evaluations in one launch each
+        # (StepObjective(kernel_evaluation=True)); built on first use. (The kernel runs an island in one thread:
+        # on a GPU the per-sphere contact kernels and batched torch are the right shape.)
+        self._evaluator_fits = (
+            bool((~rigid).all()) and fused_fits(layout) and model.mass_kg.device.type == "cpu"
+        )
+        self._evaluator: FusedNewton | None = None
+        self._model, self._layout = model, layout
+
+    @property
+    def evaluator(self) -> FusedNewton | None:
+        """The workspace's :class:`FusedNewton` for evaluations (no solves) of islands of deformable objects,
+        on this workspace's contact buffers; None when some object has one handle (those islands take the fused
+        solver) or the islands do not fit the kernel."""
+        if self._evaluator is None and self._evaluator_fits:
+            self._evaluator = FusedNewton(self._model, self._layout, self.contact, self.island_mass_kg,
+                                          self.min_median_radius_m)  # fmt: skip
+        return self._evaluator
 
 
 def island_constants(model: Model, layout: DofLayout) -> tuple[torch.Tensor, torch.Tensor]:
@@ -136,11 +154,15 @@ class StepObjective(Objective):
         pairs: PairSet,
         workspace: SolveWorkspace | None = None,
         lagged_elastic_hessian: bool = False,
+        kernel_evaluation: bool = False,
     ) -> None:
         self.model, self.layout, self.scene, self.pairs = model, layout, scene, pairs
         self.lagged_elastic_hessian = lagged_elastic_hessian
         self._kept_elastic_hessian: dict[int, torch.Tensor] = {}  # per elastic group (lagged_elastic_hessian)
         self._base: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # (M, K, M + h^2 K assembled)
+        # M + h^2 K with every object's elastic blocks the kept ones (what a kernel evaluation adds its contact
+        # matrix to), None until then
+        self._kept_base: torch.Tensor | None = None
         self.gravity = gravity_m_s2
         self.h, self.h2 = h_s, h_s * h_s
         self.tm_n = tm_n
@@ -159,6 +181,7 @@ class StepObjective(Objective):
         )  # fmt: skip
         self.elastic_groups = self.workspace.elastic_groups
         self.padding = self.workspace.padding
+        self.evaluator = self.workspace.evaluator if kernel_evaluation else None
         self.island_mass_kg = self.workspace.island_mass_kg
         self.min_median_radius_m = self.workspace.min_median_radius_m
 
@@ -208,6 +231,18 @@ class StepObjective(Objective):
 
     # -- evaluation
     def evaluate(self, q: torch.Tensor, derivatives: bool, strict_islands: torch.Tensor | None = None) -> Evaluation:
+        """The objective per island at ``q`` (n_isl, N); with ``derivatives`` its gradient and Newton matrix (the
+        islands in ``strict_islands`` with every elastic block projected).
+
+        With ``kernel_evaluation`` (islands of deformable objects), an evaluation without derivatives, and one
+        with derivatives once the kept elastic blocks make the matrix's inertia and elastic part constant
+        (``lagged_elastic_hessian``), is one launch of the fused kernel (:meth:`FusedNewton.evaluate_bound`):
+        the same terms, summed in another order (about 1e-15 relative)."""
+        if self.evaluator is not None and strict_islands is None and (not derivatives or self._kept_base is not None):
+            value, grad, hess = self.evaluator.evaluate_bound(self, q, derivatives)
+            if not derivatives:
+                return Evaluation(value)
+            return Evaluation(value, grad, torch.add(self._kept_base, hess))
         m = self.model
         tm = self.layout.to_objects(q)
         strict = None if strict_islands is None else strict_islands[self.layout.island]
@@ -219,7 +254,14 @@ class StepObjective(Objective):
         if not derivatives:
             return Evaluation(value)
         grad = self.layout.to_islands(it.grad + self.h2 * (el.grad + gr.grad)) + contact.grad
-        return Evaluation(value, grad, torch.add(self._base_matrix(it.hess, el.hess), contact.hess))  # contact: h^2
+        base = self._base_matrix(it.hess, el.hess)
+        if self.evaluator is not None and self._all_elastic_kept(el.hess):
+            self._kept_base = base
+        return Evaluation(value, grad, torch.add(base, contact.hess))  # contact: h^2
+
+    def _all_elastic_kept(self, elastic_hess: torch.Tensor) -> bool:
+        """Whether ``elastic_hess`` is the kept matrix of every object (one deformable group, lagged)."""
+        return len(self.elastic_groups) == 1 and elastic_hess is self._kept_elastic_hessian.get(0)
 
     def _base_matrix(self, inertia_hess: torch.Tensor, elastic_hess: torch.Tensor) -> torch.Tensor:
         """The island matrices of inertia and elasticity (``M + h^2 K``, identity rows on padding), read only.

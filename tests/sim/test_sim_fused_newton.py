@@ -71,6 +71,60 @@ def test_fused_objective_equals_the_step_objective(scene, handles):
     assert projected  # the strained states exercise the projection of elastic blocks
 
 
+@pytest.mark.parametrize("scene", SCENES, ids=IDS)
+def test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms(scene):
+    """``StepObjective(kernel_evaluation=True)`` on deformable objects (3, 2 and 4 handles, pairs in an island
+    and against a frozen partner, lagged elastic matrix): an evaluation without derivatives is one launch
+    from the start, one with derivatives once the first has formed the kept elastic blocks (the kernel adds
+    only the contact matrix to the kept ``M + h^2 K``). Values, gradients and matrices equal the batched
+    terms' at every state to round-off, and a projected (strict) evaluation still takes the batched terms."""
+    model, layout, distance, _, _, pairs, tm = _setup(scene, 3, (3, 2, 4))
+    tmdot = torch.zeros_like(tm)
+    gen = torch.Generator().manual_seed(4)
+    for o in range(model.num_objects):
+        cols = 4 * int(model.num_handles[o])
+        tmdot[o, :, :cols] = 0.3 * torch.randn(3, cols, generator=gen, dtype=D) / cols
+
+    def objective(kernel: bool) -> StepObjective:
+        return StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs,
+                             lagged_elastic_hessian=True, kernel_evaluation=kernel)  # fmt: skip
+
+    kernel, batched = objective(True), objective(False)
+    assert kernel.evaluator is not None and batched.evaluator is None
+    launches = {"n": 0}
+    evaluate_bound = kernel.evaluator.evaluate_bound
+
+    def counted(*args, **kwargs):
+        launches["n"] += 1
+        return evaluate_bound(*args, **kwargs)
+
+    kernel.evaluator.evaluate_bound = counted
+    q0 = layout.to_islands(tm + H_S * tmdot)
+    states = [q0 + 2e-3 * torch.randn(q0.shape, generator=gen, dtype=D) for _ in range(3)]
+    ref_value = batched.evaluate(q0, False).value
+    torch.testing.assert_close(kernel.evaluate(q0, False).value, ref_value, rtol=1e-12, atol=0.0)
+    assert launches["n"] == 1  # without derivatives: the kernel from the first evaluation on
+    for k, q in enumerate([q0, *states]):
+        ev, ref = kernel.evaluate(q, True), batched.evaluate(q, True)
+        # the first evaluation with derivatives forms the kept blocks (batched terms), the later ones launch
+        assert launches["n"] == 1 + 2 * k
+        torch.testing.assert_close(ev.value, ref.value, rtol=1e-12, atol=0.0)
+        torch.testing.assert_close(ev.grad, ref.grad, rtol=0.0, atol=1e-10 * float(ref.grad.abs().amax()))
+        torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
+        only = kernel.evaluate(q, False)
+        torch.testing.assert_close(only.value, ref.value, rtol=1e-12, atol=0.0)
+    assert not torch.equal(states[0], q0)
+    strict = torch.ones(layout.num_islands, dtype=torch.bool)
+    before = launches["n"]
+    ev, ref = kernel.evaluate(states[-1], True, strict), batched.evaluate(states[-1], True, strict)
+    assert launches["n"] == before  # projected: the batched terms
+    torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
+    # the projected blocks are kept from then on: the next kernel evaluation adds its contact matrix to them
+    ev, ref = kernel.evaluate(states[0], True), batched.evaluate(states[0], True)
+    assert launches["n"] == before + 1
+    torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
+
+
 def _captured_solves(max_solves: int = 40, throw: bool = False):
     """Real (sub)step solves of the stack below (one-handle boxes falling, landing on the ground and on each
     other, with pairs and friction): the arguments the solver passed to ``minimise`` (batched path)."""
