@@ -329,6 +329,21 @@ def _add_affine_elastic(grad: wp.array(dtype=wp.float64), hess: wp.array(dtype=w
 
 
 @wp.func
+def _add_elastic_gradient(grad: wp.array(dtype=wp.float64), flat_index: wp.array2d(dtype=wp.int32),
+                          cub_c: wp.array4d(dtype=wp.float64), o: int, i: int, cols: int, kp: int, w: wp.float64,
+                          piola: wp.mat33d):  # fmt: skip
+    """Cubature point i of object o: its elastic gradient ``w P C_i^T`` (entry (r, a): ``w sum_j P[r, j] C[a, j]``)
+    added to the object's unknowns."""
+    for r in range(3):
+        for a in range(cols):
+            fr = flat_index[o, r * kp + a]
+            g_ra = _ZERO
+            for j in range(3):
+                g_ra = g_ra + piola[r, j] * cub_c[o, i, a, j]
+            grad[fr] = grad[fr] + w * g_ra
+
+
+@wp.func
 def _affine_row(b: wp.array3d(dtype=wp.float64), o: int, s: int):
     """The four basis values of sphere (o, s) of a one-handle object (its ``[x0; 1]`` weights)."""
     return wp.vec4d(b[o, s, 0], b[o, s, 1], b[o, s, 2], b[o, s, 3])
@@ -435,15 +450,8 @@ def _evaluate(
                 f = deformation_gradient(tm, bd.cub_c, o, i, cols)
                 psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], wp.where(derivatives == 1, 1, 0))
                 value = value + h2 * v * psi
-                if derivatives == CONTACT_MATRIX_ONLY:  # the elastic gradient w P C^T only
-                    w = h2 * v
-                    for r in range(3):
-                        for a in range(cols):
-                            fr = bd.flat_index[o, r * kp + a]
-                            g_ra = _ZERO
-                            for j in range(3):
-                                g_ra = g_ra + piola[r, j] * bd.cub_c[o, i, a, j]
-                            grad[fr] = grad[fr] + w * g_ra
+                if derivatives == CONTACT_MATRIX_ONLY:  # the elastic gradient only
+                    _add_elastic_gradient(grad, bd.flat_index, bd.cub_c, o, i, cols, kp, h2 * v, piola)
                 if derivatives == 1:
                     if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:  # as StepObjective: projected
                         flagged = int(1)
@@ -452,13 +460,10 @@ def _evaluate(
                     if bd.identity_c[o] != 0:  # C = [I; 0]: the sums below reduce to P and H themselves
                         _add_affine_elastic(grad, hess, n_size, isl, bd.flat_index[o, 0], w, piola, h9)
                         continue
+                    _add_elastic_gradient(grad, bd.flat_index, bd.cub_c, o, i, cols, kp, w, piola)
                     for r in range(3):
                         for a in range(cols):
                             fr = bd.flat_index[o, r * kp + a]
-                            g_ra = _ZERO
-                            for j in range(3):
-                                g_ra = g_ra + piola[r, j] * bd.cub_c[o, i, a, j]
-                            grad[fr] = grad[fr] + w * g_ra
                             base = fr * n_size - isl * n_size
                             for s in range(3):
                                 for c in range(cols):

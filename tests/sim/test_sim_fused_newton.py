@@ -4,6 +4,7 @@ objective, gradient and Newton matrix as :class:`StepObjective` (1e-10), the sam
 simulations that agree with the batched path and repeat bit for bit."""
 
 import itertools
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -91,23 +92,16 @@ def test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms(scene)
 
     kernel, batched = objective(True), objective(False)
     assert kernel.evaluator is not None and batched.evaluator is None
-    launches = {"n": 0}
-    evaluate_bound = kernel.evaluator.evaluate_bound
-
-    def counted(*args, **kwargs):
-        launches["n"] += 1
-        return evaluate_bound(*args, **kwargs)
-
-    kernel.evaluator.evaluate_bound = counted
+    launches = kernel.evaluator.evaluate_bound = mock.Mock(wraps=kernel.evaluator.evaluate_bound)
     q0 = layout.to_islands(tm + H_S * tmdot)
     states = [q0 + 2e-3 * torch.randn(q0.shape, generator=gen, dtype=D) for _ in range(3)]
     ref_value = batched.evaluate(q0, False).value
     torch.testing.assert_close(kernel.evaluate(q0, False).value, ref_value, rtol=1e-12, atol=0.0)
-    assert launches["n"] == 1  # without derivatives: the kernel from the first evaluation on
+    assert launches.call_count == 1  # without derivatives: the kernel from the first evaluation on
     for k, q in enumerate([q0, *states]):
         ev, ref = kernel.evaluate(q, True), batched.evaluate(q, True)
         # the first evaluation with derivatives forms the kept blocks (batched terms), the later ones launch
-        assert launches["n"] == 1 + 2 * k
+        assert launches.call_count == 1 + 2 * k
         torch.testing.assert_close(ev.value, ref.value, rtol=1e-12, atol=0.0)
         torch.testing.assert_close(ev.grad, ref.grad, rtol=0.0, atol=1e-10 * float(ref.grad.abs().amax()))
         torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
@@ -115,13 +109,13 @@ def test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms(scene)
         torch.testing.assert_close(only.value, ref.value, rtol=1e-12, atol=0.0)
     assert not torch.equal(states[0], q0)
     strict = torch.ones(layout.num_islands, dtype=torch.bool)
-    before = launches["n"]
+    before = launches.call_count
     ev, ref = kernel.evaluate(states[-1], True, strict), batched.evaluate(states[-1], True, strict)
-    assert launches["n"] == before  # projected: the batched terms
+    assert launches.call_count == before  # projected: the batched terms
     torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
     # the projected blocks are kept from then on: the next kernel evaluation adds its contact matrix to them
     ev, ref = kernel.evaluate(states[0], True), batched.evaluate(states[0], True)
-    assert launches["n"] == before + 1
+    assert launches.call_count == before + 1
     torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
 
 
