@@ -1339,6 +1339,9 @@ class FusedNewton:
         adds to its kept ``M + h^2 K``. The step's data are bound once per objective (its contact buffers are
         this workspace's, prepared by its constructor)."""
         n_isl, size = self.shape
+        if self._value.shape[0] != n_isl:  # regrouped (relayout) since the outputs were made
+            self._value, self._flagged = self._value.new_zeros(n_isl), self._flagged.new_zeros(n_isl)
+            self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
         if self._bound_objective is not objective:
             self._bound_step = self._step_data(objective)
             self._bound_objective = objective
