@@ -436,13 +436,12 @@ def _evaluate(
                 if derivatives != 0:
                     fr = bd.flat_index[o, row]
                     grad[fr] = grad[fr] + m_d - h2 * st.gravity[r] * bd.mass_b_sum[o, a]
-                if derivatives == 1:
-                    fr = bd.flat_index[o, row]
-                    base = fr * n_size - isl * n_size
-                    for s in range(s_lo, s_hi):
-                        for c in range(cols):
-                            fc = bd.flat_index[o, s * kp + c]
-                            hess[base + fc] = hess[base + fc] + bd.mass_matrix[o, row, s * kp + c]
+                    if derivatives == 1:  # (CONTACT_MATRIX_ONLY: the mass matrix is in the caller's kept base)
+                        base = fr * n_size - isl * n_size
+                        for s in range(s_lo, s_hi):
+                            for c in range(cols):
+                                fc = bd.flat_index[o, s * kp + c]
+                                hess[base + fc] = hess[base + fc] + bd.mass_matrix[o, row, s * kp + c]
         # neo-Hookean cubature sum (h^2 V Psi(F_i))
         for i in range(bd.cub_volume.shape[1]):
             v = bd.cub_volume[o, i]
