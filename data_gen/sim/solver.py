@@ -207,6 +207,48 @@ class StepStats:
         if magnitude > entry["peak_force_n"]:
             entry.update(peak_force_n=magnitude, position_m=position_m, normal=normal)
 
+    def add_pair_force_series(
+        self,
+        keys: list[tuple[int, int]],
+        force_n: np.ndarray,
+        position_m: np.ndarray,
+        normal: np.ndarray,
+        present: np.ndarray,
+        h_s: float,
+    ) -> None:
+        """:meth:`add_pair_force` of every entry ``[j, k]`` with ``present[j, k]`` ((J, K) bool; forces,
+        positions and normals (J, K, 3), key ``keys[k]``), called in sub-step order j and within a sub-step in
+        key order k, with the same sums (impulses added sub-step by sub-step, the first strongest force kept),
+        computed for all keys at once."""
+        seen = present.any(0)
+        if not seen.any():
+            return
+        num_sub, count = present.shape
+        magnitude = np.sqrt((force_n[..., None, :] @ force_n[..., :, None])[..., 0, 0])  # np.linalg.norm of each
+        impulse = np.zeros(count)
+        peak = np.full(count, -1.0)
+        best = np.zeros(count, dtype=np.int64)
+        for j in range(num_sub):  # in order: the same additions as one call per entry
+            here = present[j]
+            impulse = np.where(here, impulse + magnitude[j] * h_s, impulse)
+            stronger = here & (magnitude[j] > peak)
+            peak = np.where(stronger, magnitude[j], peak)
+            best = np.where(stronger, j, best)
+        first = np.where(seen, present.argmax(0), num_sub)
+        for k in np.lexsort((np.arange(count), first))[: int(seen.sum())]:  # the order the keys appear in
+            key = keys[k]
+            if key in self.pair_forces:  # met earlier in the step: added entry by entry
+                for j in np.flatnonzero(present[:, k]):
+                    self.add_pair_force(key, force_n[j, k], position_m[j, k], normal[j, k], h_s)
+                continue
+            j = best[k]
+            self.pair_forces[key] = {
+                "impulse_n_s": float(impulse[k]),
+                "peak_force_n": float(peak[k]),
+                "position_m": position_m[j, k],
+                "normal": normal[j, k],
+            }
+
 
 @dataclass
 class _PairSet:
@@ -946,13 +988,25 @@ class ImplicitEulerSolver:
             supported[group_a[live]] = True
             sleeping_c = group_c[live][self.state.asleep[group_c[live]]]
             supported[sleeping_c] = True
-        for j in range(touching.shape[0]):  # sub-step by sub-step: scene contacts, then object pairs
-            for slot in np.flatnonzero(touching[j]):
-                supported[objects[slot]] = True
-                stats.add_pair_force((ids[slot], 0), total_np[j, slot], pos_np[j, slot], nrm_np[j, slot], h)
-            g = np.flatnonzero(active[j])
-            if len(g):
-                self._add_object_pair_statistics(group_a[g], group_c[g], pair_sums[j, g], stats)
+        supported[np.asarray(objects)[touching.any(0)]] = True
+        # sub-step by sub-step the scene contacts, then the object pairs (as :meth:`_add_object_pair_statistics`:
+        # keyed (smaller id, larger id), force and normal from the smaller id's side), all at once
+        id_a, id_c = self._object_id[group_a], self._object_id[group_c]
+        flip = np.where(id_a > id_c, -1.0, 1.0)[None, :, None]
+        pair_total = pair_sums[..., 0:3] * flip
+        weight = pair_sums[..., 9:10]
+        pair_pos = np.divide(pair_sums[..., 3:6], weight, out=np.zeros_like(pair_total), where=weight > 0)
+        pair_nrm = pair_sums[..., 6:9] * flip
+        pair_nrm = pair_nrm / np.maximum(np.sqrt((pair_nrm[..., None, :] @ pair_nrm[..., :, None])[..., 0]), 1e-300)
+        keys = [(int(i), 0) for i in ids] + list(zip(np.minimum(id_a, id_c).tolist(), np.maximum(id_a, id_c).tolist()))
+        stats.add_pair_force_series(
+            keys,
+            np.concatenate([total_np, pair_total], axis=1),
+            np.concatenate([pos_np, pair_pos], axis=1),
+            np.concatenate([nrm_np, pair_nrm], axis=1),
+            np.concatenate([touching, active], axis=1),
+            h,
+        )
         last = touching.shape[0] - 1
         force = result.scene_force_n[last] * sphere_valid[:, :, None]  # (n, S, 3)
         for slot, o in enumerate(objects):  # what an object that falls asleep now keeps

@@ -447,3 +447,36 @@ def test_a_recorded_fused_step_keeps_the_sphere_records_of_one_record_per_subste
     full = _stack_then_drop()
     assert any((tr.contact_partner > 0).any() for tr in full.objects)
     _assert_same_results(lean, full)
+
+
+def test_pair_force_series_equals_one_call_per_entry_in_order():
+    """StepStats.add_pair_force_series leaves the same entries, bit for bit and in the same key order, as one
+    add_pair_force per present entry, sub-step by sub-step and key by key: impulses summed in that order, the
+    first of equal strongest forces kept (ties made on purpose), keys met earlier in the step added to."""
+    rng = np.random.default_rng(4)
+    for trial in range(20):
+        num_sub, count = int(rng.integers(1, 9)), int(rng.integers(1, 12))
+        keys = [(int(a), int(b)) for a, b in rng.integers(0, 6, (count, 2))]
+        keys = list(dict.fromkeys(keys))  # distinct keys, as a part's objects and object pairs are
+        count = len(keys)
+        force = rng.normal(size=(num_sub, count, 3)) * rng.uniform(0.0, 50.0, (num_sub, count, 1))
+        tie = rng.random((num_sub, count)) < 0.2
+        force[tie] = np.broadcast_to(force[0], force.shape)[tie]  # equal magnitudes in several sub-steps
+        position = rng.normal(size=(num_sub, count, 3))
+        normal = rng.normal(size=(num_sub, count, 3))
+        present = rng.random((num_sub, count)) < 0.6
+        h = float(rng.uniform(1e-3, 1e-2))
+        expected, series = StepStats(), StepStats()
+        for stats in (expected, series):  # a key met earlier in the step (e.g. a sleeping contact)
+            if trial % 3 == 0:
+                stats.add_pair_force(keys[0], np.array([1.0, 2.0, 2.0]), np.zeros(3), np.ones(3), h)
+        for j in range(num_sub):
+            for k in np.flatnonzero(present[j]):
+                expected.add_pair_force(keys[k], force[j, k], position[j, k], normal[j, k], h)
+        series.add_pair_force_series(keys, force, position, normal, present, h)
+        assert list(series.pair_forces) == list(expected.pair_forces)
+        for key, entry in expected.pair_forces.items():
+            got = series.pair_forces[key]
+            assert got["impulse_n_s"] == entry["impulse_n_s"] and got["peak_force_n"] == entry["peak_force_n"]
+            np.testing.assert_array_equal(got["position_m"], entry["position_m"])
+            np.testing.assert_array_equal(got["normal"], entry["normal"])
