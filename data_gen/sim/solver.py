@@ -338,7 +338,6 @@ class ImplicitEulerSolver:
         self.dt = float(dt_s)
         self.fused_newton = bool(fused_newton)
         self.broad_phase = BroadPhase([b.contact for b in bodies], float(self.gravity.norm()), device)
-        self.h = self.dt  # current (sub)step, s
         self.step_index = 0
         self.timings: dict[str, float] = {"broad_phase": 0.0, "newton": 0.0}
         self.model = Model.build(
@@ -383,9 +382,10 @@ class ImplicitEulerSolver:
         )
 
     # ------------------------------------------------------------------ public
-    def stiffness(self, k: int) -> float:
-        """Scene contact stiffness of object k per contact sphere: factor * mass / h^2 (N/m)."""
-        return self.preset.contact_stiffness_factor * self.bodies[k].model.mass_kg / self.h**2
+    def stiffness(self, k: int, h_s: float) -> float:
+        """Scene contact stiffness of object k per contact sphere in a (sub)step of ``h_s`` s: factor * mass / h^2
+        (N/m)."""
+        return self.preset.contact_stiffness_factor * self.bodies[k].model.mass_kg / h_s**2
 
     def step(self, record_sphere_forces: bool = True) -> StepStats:
         """Advance all objects by ``dt_s``; raises SimulationError on non-finite values.
@@ -404,7 +404,6 @@ class ImplicitEulerSolver:
         partner within one step.  Islands in free flight take the full step.
         """
         stats = StepStats()
-        self.h = self.dt
         positions = self._contact_positions()
         speeds = [None if asleep else self._max_speed(k) for k, asleep in enumerate(self.state.asleep)]
         pairs = self._step_candidates(positions)  # (its search counts as broad phase time)
@@ -438,7 +437,7 @@ class ImplicitEulerSolver:
         for num_sub, rigid in keys:
             group = by_substeps[(num_sub, rigid)]
             stats.substeps = max(stats.substeps, num_sub)
-            self.h = self.dt / num_sub
+            h = self.dt / num_sub
             if rigid and num_sub in records:
                 t0 = time.perf_counter()
                 records[num_sub]()
@@ -448,13 +447,12 @@ class ImplicitEulerSolver:
             member_pairs = self._member_pairs(members, contacts.pairs)
             for _ in range(num_sub):
                 t0 = time.perf_counter()
-                pair_set = self._island_pairs(*member_pairs, positions)
-                stats.newton_iterations += self._solve_group(group, pair_set, self.h, stats, supported)
+                pair_set = self._island_pairs(*member_pairs, positions, h)
+                stats.newton_iterations += self._solve_group(group, pair_set, h, stats, supported)
                 for k in members:
                     positions[k] = self.bodies[k].contact_positions(self.state.q[k])
                 self.timings["newton"] += time.perf_counter() - t0
-        self.h = self.dt
-        self._record_sleeping_contacts(contacts.pairs, positions, stats)
+        self._record_sleeping_contacts(contacts.pairs, positions, stats, self.dt)
         self._update_sleep(islands, supported)
         self.step_index += 1
         return stats
@@ -531,7 +529,7 @@ class ImplicitEulerSolver:
         """Contact forces of the current state without stepping (used for the initial frame)."""
         stats = StepStats()
         positions = self._contact_positions()
-        pairs = self.broad_phase.candidates(positions, None, self.h)
+        pairs = self.broad_phase.candidates(positions, None, self.dt)
         supported = np.zeros(len(self.bodies), dtype=bool)
         for b in self.bodies:
             b.reset_step_forces()
@@ -539,8 +537,8 @@ class ImplicitEulerSolver:
         islands = bp.contacts(pairs, bp.object_pairs(pairs), self.state.asleep).islands
         if islands:
             members = [k for island in islands for k in island]
-            ps = self._island_pairs(*self._member_pairs(members, pairs), positions)
-            self._record_current_forces(islands, ps, stats, supported)
+            ps = self._island_pairs(*self._member_pairs(members, pairs), positions, self.dt)
+            self._record_current_forces(islands, ps, self.dt, stats, supported)
         return stats
 
     def energies(self) -> dict[str, float]:
@@ -555,7 +553,7 @@ class ImplicitEulerSolver:
         if self.bodies:  # scene contact: one query for all spheres, summed object by object
             sdf, normal = self.scene.query(torch.cat(positions))
             stiffness = torch.cat(
-                [torch.full((b.contact.num_points,), self.stiffness(k), dtype=DTYPE) for k, b in enumerate(self.bodies)]
+                [torch.full((b.contact.num_points,), self.stiffness(k, self.dt), dtype=DTYPE) for k, b in enumerate(self.bodies)]
             )
             energy, _, _ = point_terms.penalty(
                 self.broad_phase.radii_all - torch.from_numpy(sdf), torch.from_numpy(normal), stiffness, False
@@ -573,7 +571,7 @@ class ImplicitEulerSolver:
             point_object, radii_all = self.broad_phase.point_object, self.broad_phase.radii_all
             oi, oj = point_object[pairs[:, 0]], point_object[pairs[:, 1]]
             x_all = torch.cat(positions)
-            k = torch.from_numpy(self._pair_tables()[0][oi, oj])
+            k = torch.from_numpy(self._pair_tables(self.dt)[0][oi, oj])
             rs = radii_all[pairs[:, 0]] + radii_all[pairs[:, 1]]
             con += pair_contact(x_all[pairs[:, 0]], x_all[pairs[:, 1]], rs, k).energy
         return {"kinetic": kin, "elastic": ela, "contact": con, "gravity": grav}
@@ -643,19 +641,19 @@ class ImplicitEulerSolver:
                     state.asleep[k] = True
                     state.qdot[k] = torch.zeros_like(state.qdot[k])
 
-    def _pair_tables(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per object pair: contact stiffness (N/m) = factor * reduced mass / h^2 (a sleeping partner counts
-        as infinitely heavy) and friction coefficient sqrt(mu_a mu_c).  Kept while h and the sleep flags
-        stay the same (every sub-step of a step)."""
+    def _pair_tables(self, h_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per object pair: contact stiffness (N/m) = factor * reduced mass / h^2 in a (sub)step of ``h_s`` s (a
+        sleeping partner counts as infinitely heavy) and friction coefficient sqrt(mu_a mu_c).  Kept while h and
+        the sleep flags stay the same (every sub-step of a step)."""
         asleep = self.state.asleep.copy()
-        key = (self.h, asleep.tobytes())
+        key = (h_s, asleep.tobytes())
         if self._pair_table_cache is not None and self._pair_table_cache[0] == key:
             return self._pair_table_cache[1]
         mass = np.array([b.model.mass_kg for b in self.bodies])
         reduced = mass[:, None] * mass[None, :] / (mass[:, None] + mass[None, :])
         reduced = np.where(asleep[None, :], mass[:, None], np.where(asleep[:, None], mass[None, :], reduced))
         mu = np.array([b.friction_coefficient for b in self.bodies])
-        tables = self.preset.contact_stiffness_factor * reduced / self.h**2, np.sqrt(mu[:, None] * mu[None, :])
+        tables = self.preset.contact_stiffness_factor * reduced / h_s**2, np.sqrt(mu[:, None] * mu[None, :])
         self._pair_table_cache = (key, tables)
         return tables
 
@@ -671,22 +669,22 @@ class ImplicitEulerSolver:
         swap = ~inside[touching, 0]  # orient every pair so that side i is an island member
         return np.where(swap, sel[:, 1], sel[:, 0]), np.where(swap, sel[:, 0], sel[:, 1])
 
-    def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor],
+    def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor], h_s: float,
                       within_substep: bool = True, start_state: bool = True) -> _PairSet:  # fmt: skip
-        """The pair set of a (sub)step from the members' candidate pairs (:meth:`_member_pairs`) and the
-        current sphere positions (m); in a sub-step, only the pairs that can touch within it unless not
+        """The pair set of a (sub)step of ``h_s`` s from the members' candidate pairs (:meth:`_member_pairs`) and
+        the current sphere positions (m); in a sub-step, only the pairs that can touch within it unless not
         ``within_substep`` (all the step's candidates: they serve every sub-step). Without ``start_state`` the
         start data of side i and of the pair (``x0_i``, ``normal0``, ``lam_n``: None) are left to the caller,
         as the fused sub-steps compute them in their launch; ``x0_j`` stays (a sleeping side j's positions)."""
         bp = self.broad_phase
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
-        if len(gi) and self.h < self.dt and within_substep:
+        if len(gi) and h_s < self.dt and within_substep:
             # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
-            near = bp.within_reach(gi, gj, x_all.numpy(), self._sphere_velocity_list(), self.h)
+            near = bp.within_reach(gi, gj, x_all.numpy(), self._sphere_velocity_list(), h_s)
             gi, gj = gi[near], gj[near]
         oi, oj = bp.point_object[gi], bp.point_object[gj]
         li, lj = gi - bp.offsets[oi], gj - bp.offsets[oj]
-        stiffness, friction = self._pair_tables()
+        stiffness, friction = self._pair_tables(h_s)
         k = torch.from_numpy(stiffness[oi, oj])
         mu = torch.from_numpy(friction[oi, oj])
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
@@ -894,10 +892,9 @@ class ImplicitEulerSolver:
         p0 = g0 = 0
         nb = len(self.bodies)
         for num_sub, group in parts:
-            self.h = self.dt / num_sub
             members = [k for island in group for k in island]
-            ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, within_substep=False,
-                                    start_state=False)  # fmt: skip
+            ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, self.dt / num_sub,
+                                    within_substep=False, start_state=False)  # fmt: skip
             part_pairs.append(ps)
             slots.append(torch.from_numpy(slot_of[members]))
             rows.append((p0, p0 + len(ps.obj_i)))
@@ -951,13 +948,12 @@ class ImplicitEulerSolver:
         def record(num_sub: int, part_ps: _PairSet, part_slots: torch.Tensor, row_range: tuple[int, int],
                    group_range: tuple[int, int], part_groups: tuple[np.ndarray, np.ndarray]) -> None:  # fmt: skip
             h = self.dt / num_sub
-            self.h = h
             sub = result.part(part_slots, row_range, num_sub, group_range)
             part_objects = [objects[slot] for slot in part_slots.tolist()]  # island by island
             valid = model.sphere_valid[part_slots]
             self._record_substep_statistics(part_objects, sub, part_groups, valid, h, stats, supported)
             if self._record_spheres:
-                self._record_substep_sphere_forces(part_objects, sub, part_ps, valid)
+                self._record_substep_sphere_forces(part_objects, sub, part_ps, valid, h)
 
         return {
             num_sub: partial(record, num_sub, part_ps, part_slots, row_range, group_range, part_groups)
@@ -1017,7 +1013,7 @@ class ImplicitEulerSolver:
             )
 
     def _record_substep_sphere_forces(self, objects: list[int], result: SubstepResult, ps: _PairSet,
-                                      sphere_valid: torch.Tensor) -> None:  # fmt: skip
+                                      sphere_valid: torch.Tensor, h_s: float) -> None:  # fmt: skip
         """The per-sphere records (contact force, partner and its strength) that one :meth:`_record_group_forces`
         call per sub-step of ``result`` leaves (the statistics: :meth:`_record_substep_statistics`): each call
         starts the records of ``objects`` anew, so theirs are the last sub-step's; a sleeping partner collects
@@ -1038,7 +1034,7 @@ class ImplicitEulerSolver:
             if len(rows):
                 r = rows.numpy()
                 self._accumulate_pair_forces(ps.obj_i[r], ps.loc_i[r], ps.obj_j[r], ps.loc_j[r], None, None,
-                                             forces.pair_force_i_n[rows], None, None, None)  # fmt: skip
+                                             forces.pair_force_i_n[rows], None, h_s, None, None)  # fmt: skip
 
     def _start_sphere_records(self, objects: list[int], force: torch.Tensor, magnitude: torch.Tensor) -> None:
         """:meth:`SimBody.reset_step_forces` of ``objects`` at once, from their scene forces (n, S, 3) N and
@@ -1051,14 +1047,13 @@ class ImplicitEulerSolver:
             b.partner_strength_n = magnitude[slot, :k]
             b.contact_partner = partner[slot, :k]
 
-    def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, stats: StepStats,
-                               supported: np.ndarray) -> None:
-        """Contact forces of the current state without stepping (the initial frame): the step that led
-        here is taken to have started at ``q - h qdot``."""
+    def _record_current_forces(self, islands: list[list[int]], ps: _PairSet, h: float, stats: StepStats,
+                               supported: np.ndarray) -> None:  # fmt: skip
+        """Contact forces of the current state without stepping (the initial frame): the step of ``h`` s that
+        led here is taken to have started at ``q - h qdot``."""
         setup = self._group_setup(islands)
         objects, slot_of, model, layout = setup.objects, setup.slot_of, setup.model, setup.layout
         tm, tmdot = self._padded_states(setup)
-        h = self.h
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm - h * tmdot, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
@@ -1113,17 +1108,18 @@ class ImplicitEulerSolver:
         r = rows.numpy()
         self._accumulate_pair_forces(
             ps.obj_i[r], ps.loc_i[r], ps.obj_j[r], ps.loc_j[r], xi, xj, forces.pair_force_i_n[rows],
-            forces.pair_normals[rows], stats, supported,
+            forces.pair_normals[rows], h, stats, supported,
         )  # fmt: skip
 
     def _record_sleeping_contacts(
-        self, pairs: np.ndarray, positions: list[torch.Tensor], stats: StepStats
+        self, pairs: np.ndarray, positions: list[torch.Tensor], stats: StepStats, h_s: float
     ) -> None:
-        """Frozen scene contacts of sleeping objects and normal forces between two sleeping objects."""
+        """Frozen scene contacts of sleeping objects and normal forces between two sleeping objects over a step
+        of ``h_s`` s."""
         asleep = self.state.asleep
         for b, sleeping in zip(self.bodies, asleep):
             if sleeping and b.static_summary is not None:
-                stats.add_pair_force((b.object_id, 0), *b.static_summary, self.h)
+                stats.add_pair_force((b.object_id, 0), *b.static_summary, h_s)
         if not len(pairs):
             return
         bp = self.broad_phase
@@ -1136,7 +1132,7 @@ class ImplicitEulerSolver:
         x_all = torch.cat(positions)
         mass = np.array([b.model.mass_kg for b in self.bodies])
         k = torch.from_numpy(
-            self.preset.contact_stiffness_factor * np.minimum(mass[oi], mass[oj]) / self.h**2
+            self.preset.contact_stiffness_factor * np.minimum(mass[oi], mass[oj]) / h_s**2
         )
         pc = pair_contact(x_all[gi], x_all[gj], bp.radii_all[gi] + bp.radii_all[gj], k)
         self._accumulate_pair_forces(
@@ -1148,6 +1144,7 @@ class ImplicitEulerSolver:
             x_all[gj],
             -pc.grad_i,
             pc.normal_ji,
+            h_s,
             stats,
             np.zeros(len(self.bodies), dtype=bool),
         )
@@ -1162,10 +1159,12 @@ class ImplicitEulerSolver:
         xj: torch.Tensor | None,
         f_i: torch.Tensor,
         normal_ji: torch.Tensor | None,
+        h_s: float,
         stats: StepStats | None,
         supported: np.ndarray | None,
     ) -> None:
-        """Add pair forces (N, on side i; side j gets the opposite) to per-point records and pair totals.
+        """Add pair forces (N, on side i; side j gets the opposite) of a (sub)step of ``h_s`` s to per-point
+        records and pair totals.
 
         One pass over all pairs, grouped by object pair (a, c) (sorted): a's spheres get the force on side
         i, c's the opposite (a sleeping c collects the average over the island's sub-steps); a sphere's
@@ -1188,7 +1187,7 @@ class ImplicitEulerSolver:
 
         asleep = self.state.asleep
         if self._record_spheres:
-            self._add_sphere_records(obj_a, obj_c, oi, oj, loc_i[rows], loc_j[rows], group, fa, m)
+            self._add_sphere_records(obj_a, obj_c, oi, oj, loc_i[rows], loc_j[rows], group, fa, m, h_s)
         if stats is None:
             return
         supported[obj_a] = True
@@ -1201,10 +1200,10 @@ class ImplicitEulerSolver:
         )
         sums = np.zeros((len(keys), 10))
         np.add.at(sums, group, weighted)
-        self._add_object_pair_statistics(obj_a, obj_c, sums, stats)
+        self._add_object_pair_statistics(obj_a, obj_c, sums, stats, h_s)
 
     def _add_object_pair_statistics(self, obj_a: np.ndarray, obj_c: np.ndarray, sums: np.ndarray,
-                                    stats: StepStats) -> None:  # fmt: skip
+                                    stats: StepStats, h_s: float) -> None:  # fmt: skip
         """Per object pair (a, c) (in order): ``sums`` (10,) = total force on a (N), force-weighted sum of
         contact positions (N m), of normals c -> a (N), and the force magnitudes (N); added to the step
         statistics keyed (smaller id, larger id), force and normal from the smaller id's side."""
@@ -1213,12 +1212,12 @@ class ImplicitEulerSolver:
         for g in range(len(obj_a)):  # loop over object pairs: events are keyed (smaller id, larger id)
             total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
             key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
-            stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), self.h)
+            stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), h_s)
 
 
     def _add_sphere_records(self, obj_a: np.ndarray, obj_c: np.ndarray, oi: np.ndarray, oj: np.ndarray,
                             loc_i: np.ndarray, loc_j: np.ndarray, group: np.ndarray, fa: np.ndarray,
-                            m: np.ndarray) -> None:  # fmt: skip
+                            m: np.ndarray, h_s: float) -> None:  # fmt: skip
         """The per-sphere part of :meth:`_accumulate_pair_forces` (its rules) for the active pairs: object
         pairs (obj_a, obj_c) sorted, per pair its objects oi, oj, spheres loc_i, loc_j, object pair
         ``group``, force on side i ``fa`` (N) and its magnitude ``m``."""
@@ -1232,7 +1231,7 @@ class ImplicitEulerSolver:
         dest = np.concatenate([first[oi] + loc_i, first[oj] + loc_j])
         rank = np.concatenate([2 * group, 2 * group + 1])  # object pair, then side i before side j
         order = np.argsort(rank, kind="stable")
-        scale_j = np.where(asleep[oj], self.h / self.dt, 1.0)
+        scale_j = np.where(asleep[oj], h_s / self.dt, 1.0)
         force = np.concatenate([self.bodies[o].contact_force_n.numpy() for o in involved])
         np.add.at(force, dest[order], np.concatenate([fa, -fa * scale_j[:, None]])[order])  # in that order
         strength = np.concatenate([self.bodies[o].partner_strength_n.numpy() for o in involved])

@@ -118,7 +118,7 @@ def _reference_assign_partner(body, local, magnitude, partner_id):
     body.partner_strength_n = torch.maximum(best, body.partner_strength_n)
 
 
-def _reference_accumulate(solver, obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, normal_ji, stats, supported):
+def _reference_accumulate(solver, obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, normal_ji, h, stats, supported):
     """The former loop over object pairs of ImplicitEulerSolver._accumulate_pair_forces."""
     mag = f_i.norm(dim=1)
     act = mag > 0
@@ -134,7 +134,7 @@ def _reference_accumulate(solver, obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, norma
         ba, bc = solver.bodies[a], solver.bodies[c]
         c_asleep = solver.state.asleep[c]
         ba.contact_force_n.index_add_(0, li, fa)
-        bc.contact_force_n.index_add_(0, lj, -fa * (solver.h / solver.dt if c_asleep else 1.0))
+        bc.contact_force_n.index_add_(0, lj, -fa * (h / solver.dt if c_asleep else 1.0))
         _reference_assign_partner(ba, li, m, bc.object_id)
         _reference_assign_partner(bc, lj, m, ba.object_id)
         supported[a] = True
@@ -146,10 +146,10 @@ def _reference_accumulate(solver, obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, norma
         if ba.object_id > bc.object_id:
             total, nrm = -total, -nrm
         key = (min(ba.object_id, bc.object_id), max(ba.object_id, bc.object_id))
-        stats.add_pair_force(key, total, pos, nrm / max(float(np.linalg.norm(nrm)), 1e-300), solver.h)
+        stats.add_pair_force(key, total, pos, nrm / max(float(np.linalg.norm(nrm)), 1e-300), h)
 
 
-def _bookkeeping_solver(rng, num_points, asleep, h_s, dt_s):
+def _bookkeeping_solver(rng, num_points, asleep, dt_s):
     """A solver holding only what the force bookkeeping reads: bodies with per-sphere records, sleep flags."""
     solver = object.__new__(ImplicitEulerSolver)
     solver.bodies = []
@@ -167,7 +167,7 @@ def _bookkeeping_solver(rng, num_points, asleep, h_s, dt_s):
         )
     empty = [torch.zeros(0, dtype=torch.float64) for _ in num_points]
     solver.state = State(empty, list(empty), np.array(asleep), np.zeros(len(num_points), dtype=np.int64))
-    solver.h, solver.dt = h_s, dt_s
+    solver.dt = dt_s
     solver._object_id = np.array([b.object_id for b in solver.bodies])
     solver._record_spheres = True
     return solver
@@ -190,8 +190,8 @@ def test_vectorised_pair_bookkeeping_equals_the_loop_over_object_pairs():
         f_i[5] = -f_i[4]
         xi, xj = torch.from_numpy(rng.normal(size=(p, 3))), torch.from_numpy(rng.normal(size=(p, 3)))
         normal = torch.nn.functional.normalize(xi - xj, dim=1)
-        args = (obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, normal)
-        ref, new = (_bookkeeping_solver(np.random.default_rng(seed), num_points, asleep, 0.0025, 0.01) for _ in "ab")
+        args = (obj_i, loc_i, obj_j, loc_j, xi, xj, f_i, normal, 0.0025)  # a quarter sub-step
+        ref, new = (_bookkeeping_solver(np.random.default_rng(seed), num_points, asleep, 0.01) for _ in "ab")
         stats_ref, stats_new = StepStats(), StepStats()
         sup_ref, sup_new = np.zeros(5, dtype=bool), np.zeros(5, dtype=bool)
         _reference_accumulate(ref, *args, stats_ref, sup_ref)
@@ -208,13 +208,13 @@ def test_vectorised_pair_bookkeeping_equals_the_loop_over_object_pairs():
 
 
 def test_pair_bookkeeping_without_active_pairs_changes_nothing():
-    solver = _bookkeeping_solver(np.random.default_rng(0), [3, 3], [False, False], 0.01, 0.01)
+    solver = _bookkeeping_solver(np.random.default_rng(0), [3, 3], [False, False], 0.01)
     before = [b.contact_force_n.clone() for b in solver.bodies]
     stats, supported = StepStats(), np.zeros(2, dtype=bool)
     zeros = torch.zeros(2, 3, dtype=torch.float64)
     ImplicitEulerSolver._accumulate_pair_forces(
         solver, np.array([0, 0]), np.array([0, 1]), np.array([1, 1]), np.array([2, 0]), zeros, zeros, zeros, zeros,
-        stats, supported,
+        0.01, stats, supported,
     )  # fmt: skip
     assert not stats.pair_forces and not supported.any()
     for b, f in zip(solver.bodies, before, strict=True):
@@ -234,6 +234,22 @@ def _solver(handles=(1, 3, 2, 1)):
     return ImplicitEulerSolver(
         bodies, State.awake(qs, qdots), StaticScene(), np.array([0.0, 0.0, -9.81]), load_preset("draft"), 0.01
     )
+
+
+def test_contact_stiffness_follows_the_substep_length_passed_in():
+    """The scene and pair stiffness (factor * mass / h^2, the pair's reduced mass) of a (sub)step of the length
+    passed in; the kept pair tables follow a change of it and back. The solver keeps no current step length."""
+    solver = _solver()
+    factor = solver.preset.contact_stiffness_factor
+    mass = np.array([b.model.mass_kg for b in solver.bodies])
+    reduced = mass[0] * mass[1] / (mass[0] + mass[1])
+    for h in (0.01, 0.0025, 0.01):
+        stiffness, friction = solver._pair_tables(h)
+        assert stiffness[0, 1] == pytest.approx(factor * reduced / h**2, rel=1e-12)
+        assert friction[0, 1] == pytest.approx(0.5, rel=1e-12)  # sqrt(0.5 * 0.5)
+        assert solver.stiffness(2, h) == pytest.approx(factor * mass[2] / h**2, rel=1e-12)
+    solver.step()
+    assert not hasattr(solver, "h")
 
 
 def test_solve_setup_gathers_the_states_of_each_object_and_is_reused():
@@ -422,25 +438,25 @@ def test_a_recorded_fused_step_keeps_the_sphere_records_of_one_record_per_subste
     seen = {"calls": 0, "sleeping_partner_forces": 0}
     batched = ImplicitEulerSolver._record_substep_sphere_forces
 
-    def counted(self, objects, result, ps, sphere_valid):
+    def counted(self, objects, result, ps, sphere_valid, h_s):
         seen["calls"] += 1
         if len(ps.obj_i) and len(result.forces) > 1:
             asleep = torch.from_numpy(self.state.asleep[ps.obj_j])
             for forces in result.forces[:-1]:
                 seen["sleeping_partner_forces"] += int(((forces.pair_force_i_n != 0).any(1) & asleep).sum())
-        return batched(self, objects, result, ps, sphere_valid)
+        return batched(self, objects, result, ps, sphere_valid, h_s)
 
     monkeypatch.setattr(ImplicitEulerSolver, "_record_substep_sphere_forces", counted)
     lean = _stack_then_drop()
     # sleeping partners pushed in sub-steps before a recorded step's last: their records sum sub-steps
     assert seen["calls"] > 0 and seen["sleeping_partner_forces"] > 0, seen
 
-    def every_substep(self, objects, result, ps, sphere_valid):  # the records as before, sub-step by sub-step
+    def every_substep(self, objects, result, ps, sphere_valid, h_s):  # the records as before, sub-step by sub-step
         slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
         slot_of[objects] = np.arange(len(objects))
         pairs = self._group_pairs(objects, slot_of, ps)  # the part's pairs in its own slots
         for forces in result.forces:
-            self._record_group_forces(objects, forces, ps, pairs, sphere_valid, self.h, StepStats(),
+            self._record_group_forces(objects, forces, ps, pairs, sphere_valid, h_s, StepStats(),
                                       np.zeros(len(self.bodies), dtype=bool))  # fmt: skip
 
     monkeypatch.setattr(ImplicitEulerSolver, "_record_substep_sphere_forces", every_substep)
