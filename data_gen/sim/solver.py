@@ -676,19 +676,15 @@ class ImplicitEulerSolver:
         ``within_substep`` (all the step's candidates: they serve every sub-step). Without ``start_state`` the
         start data of side i and of the pair (``x0_i``, ``normal0``, ``lam_n``: None) are left to the caller,
         as the fused sub-steps compute them in their launch; ``x0_j`` stays (a sleeping side j's positions)."""
-        bp = self.broad_phase
+        if not start_state and not within_substep:
+            return self._pair_set_without_start(gi, gj, positions, h_s)
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
         if len(gi) and h_s < self.dt and within_substep:
             # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
-            near = bp.within_reach(gi, gj, x_all.numpy(), self._sphere_velocity_list(), h_s)
+            near = self.broad_phase.within_reach(gi, gj, x_all.numpy(), self._sphere_velocity_list(), h_s)
             gi, gj = gi[near], gj[near]
-        oi, oj = bp.point_object[gi], bp.point_object[gj]
-        li, lj = gi - bp.offsets[oi], gj - bp.offsets[oj]
-        stiffness, friction = self._pair_tables(h_s)
-        k = torch.from_numpy(stiffness[oi, oj])
-        mu = torch.from_numpy(friction[oi, oj])
+        oi, li, oj, lj, k, mu, rs = self._pair_columns(gi, gj, h_s)
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
-        rs = bp.radii_all[gi_t] + bp.radii_all[gj_t]
         x0j = x_all[gj_t]
         if not start_state:
             return _PairSet(oi, li, oj, lj, k, rs, mu, None, None, None, x0j, gi_t, gj_t)
@@ -699,6 +695,32 @@ class ImplicitEulerSolver:
         else:
             lam, n0 = torch.zeros(0, dtype=DTYPE), torch.zeros(0, 3, dtype=DTYPE)
         return _PairSet(oi, li, oj, lj, k, rs, mu, lam, n0, x0i, x0j, gi_t, gj_t)
+
+    def _pair_columns(self, gi: np.ndarray, gj: np.ndarray, h_s: float) -> tuple:
+        """Per pair (global sphere indices gi, gj): objects and local spheres (oi, li, oj, lj), contact stiffness
+        (N/m) in a (sub)step of ``h_s`` s and friction coefficient, and the radius sum (m)."""
+        bp = self.broad_phase
+        oi, oj = bp.point_object[gi], bp.point_object[gj]
+        stiffness, friction = self._pair_tables(h_s)
+        rs = bp.radii_all[torch.from_numpy(gi)] + bp.radii_all[torch.from_numpy(gj)]
+        k, mu = torch.from_numpy(stiffness[oi, oj]), torch.from_numpy(friction[oi, oj])
+        return oi, gi - bp.offsets[oi], oj, gj - bp.offsets[oj], k, mu, rs
+
+    def _pair_set_without_start(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor],
+                                h_s: float) -> _PairSet:  # fmt: skip
+        """:meth:`_island_pairs` of a whole step's candidates without start data (the fused sub-steps compute
+        them): ``x0_j`` holds side j's position where side j is off the pairs' side-i objects (a sleeping partner,
+        frozen in the solve) and zero elsewhere (nothing reads it there)."""
+        oi, li, oj, lj, k, mu, rs = self._pair_columns(gi, gj, h_s)
+        gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
+        x0j = torch.zeros(len(gj), 3, dtype=DTYPE)
+        side_i = np.zeros(len(self.bodies), dtype=bool)
+        side_i[oi] = True
+        off = np.flatnonzero(~side_i[oj])
+        if len(off):
+            rows = torch.from_numpy(off)
+            x0j[rows] = torch.cat(positions)[gj_t[rows]]
+        return _PairSet(oi, li, oj, lj, k, rs, mu, None, None, None, x0j, gi_t, gj_t)
 
     # ------------------------------------------------------------------ Newton on a group of islands
     def _group_setup(self, islands: list[list[int]], sorted_objects: bool = False) -> _GroupSetup:
@@ -899,8 +921,8 @@ class ImplicitEulerSolver:
             slots.append(torch.from_numpy(slot_of[members]))
             rows.append((p0, p0 + len(ps.obj_i)))
             p0 = rows[-1][1]
-            keys, local = np.unique(ps.obj_i * nb + ps.obj_j, return_inverse=True)
-            pair_group.append(local.reshape(-1) + g0)
+            keys, local = _distinct_codes(ps.obj_i * nb + ps.obj_j, nb * nb)
+            pair_group.append(local + g0)
             group_ranges.append((g0, g0 + len(keys)))
             group_objects.append((keys // nb, keys % nb))
             g0 += len(keys)
@@ -1256,6 +1278,15 @@ class ImplicitEulerSolver:
             b.contact_force_n = torch.from_numpy(f_o)
             b.partner_strength_n = torch.from_numpy(s_o)
             b.contact_partner = torch.from_numpy(p_o)
+
+
+def _distinct_codes(codes: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(codes, return_inverse=True)`` for integer codes in [0, size): the sorted distinct codes and
+    each code's index among them, by marking a table of ``size`` slots instead of sorting."""
+    present = np.zeros(size, dtype=bool)
+    present[codes] = True
+    rank = np.cumsum(present) - 1
+    return np.flatnonzero(present), rank[codes]
 
 
 def _same_state_key(a: tuple, b: tuple) -> bool:

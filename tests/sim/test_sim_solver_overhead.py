@@ -496,3 +496,40 @@ def test_pair_force_series_equals_one_call_per_entry_in_order():
             assert got["impulse_n_s"] == entry["impulse_n_s"] and got["peak_force_n"] == entry["peak_force_n"]
             np.testing.assert_array_equal(got["position_m"], entry["position_m"])
             np.testing.assert_array_equal(got["normal"], entry["normal"])
+
+
+def test_distinct_codes_equal_numpy_unique():
+    from data_gen.sim.solver import _distinct_codes
+
+    rng = np.random.default_rng(2)
+    for size in (1, 4, 100, 2500):
+        for n in (0, 1, 50, 3000):
+            codes = rng.integers(0, size, n)
+            keys, index = _distinct_codes(codes, size)
+            expected_keys, expected_index = np.unique(codes, return_inverse=True)
+            np.testing.assert_array_equal(keys, expected_keys)
+            np.testing.assert_array_equal(index, expected_index.reshape(-1))
+
+
+def test_pair_set_without_start_data_keeps_what_the_fused_launch_reads():
+    """The fused path's pair set (no start data) has the same objects, spheres, stiffness, friction and radius
+    sums as the full one, and side j's start positions wherever side j is not a side-i object (a sleeping
+    partner, frozen in the solve: the only rows the launch reads)."""
+    solver = _solver()
+    solver.state.asleep[3] = True
+    positions = solver._contact_positions()
+    offsets = solver.broad_phase.offsets
+    rng = np.random.default_rng(6)
+    members = [0, 1, 2]
+    gi = np.concatenate([rng.integers(offsets[o], offsets[o + 1], 15) for o in members])
+    partner = rng.choice([0, 1, 2, 3], size=len(gi))
+    gj = np.array([rng.integers(offsets[o], offsets[o + 1]) for o in partner])
+    full = solver._island_pairs(gi, gj, positions, 0.0025, within_substep=False)
+    lean = solver._island_pairs(gi, gj, positions, 0.0025, within_substep=False, start_state=False)
+    for name in ("obj_i", "loc_i", "obj_j", "loc_j"):
+        np.testing.assert_array_equal(getattr(lean, name), getattr(full, name))
+    for name in ("stiffness_n_m", "radius_sum_m", "mu", "global_i", "global_j"):
+        assert torch.equal(getattr(lean, name), getattr(full, name)), name
+    frozen = torch.from_numpy(partner == 3)
+    assert frozen.any() and torch.equal(lean.x0_j[frozen], full.x0_j[frozen])
+    assert lean.lam_n is None and lean.x0_i is None
