@@ -76,12 +76,13 @@ class BroadPhase:
             else np.zeros(0, dtype=np.int64)
         )
         self.radii_all = torch.cat([s.radius_m for s in spheres]) if spheres else torch.zeros(0)
+        self._margin_m = CONTACT_MARGIN_RADII * float(self.radii_all.max()) if spheres else 0.0
 
     @property
     def margin_m(self) -> float:
         """Gap below which two spheres are candidates without any motion: a quarter of the largest
-        radius, m."""
-        return CONTACT_MARGIN_RADII * float(self.radii_all.max())
+        radius, m (the radii are fixed: computed once)."""
+        return self._margin_m
 
     def reach(self, velocities: Sequence[torch.Tensor | None], h_s: float) -> np.ndarray:
         """Per contact sphere (all objects, global order): how far it may close in on another in a step of

@@ -702,7 +702,8 @@ class ImplicitEulerSolver:
         bp = self.broad_phase
         oi, oj = bp.point_object[gi], bp.point_object[gj]
         stiffness, friction = self._pair_tables(h_s)
-        rs = bp.radii_all[torch.from_numpy(gi)] + bp.radii_all[torch.from_numpy(gj)]
+        radii = bp.radii_all.numpy()
+        rs = torch.from_numpy(radii[gi] + radii[gj])
         k, mu = torch.from_numpy(stiffness[oi, oj]), torch.from_numpy(friction[oi, oj])
         return oi, gi - bp.offsets[oi], oj, gj - bp.offsets[oj], k, mu, rs
 
