@@ -229,6 +229,11 @@ class StaticScene:
         n = pts.shape[0]
         if n == 0:
             return np.zeros(0), np.zeros((0, 3))
+        if not self.boxes and self.points is None:  # the ground alone (or nothing): the kernel's values, directly
+            sdf = pts[:, 2].copy() if self.ground else np.full(n, _FAR_M)
+            normals = np.zeros((n, 3))
+            normals[:, 2] = 1.0
+            return sdf, normals
         boxes = self._device_boxes(device)
         sdf = wp.empty(n, dtype=wp.float64, device=device)
         normals = wp.empty(n, dtype=wp.vec3d, device=device)

@@ -44,3 +44,22 @@ def test_rotated_box_warp_matches_torch_and_rotation():
 def test_empty_scene_is_far():
     sdf, _ = StaticScene(ground=False).query(np.zeros((2, 3)))
     assert np.all(sdf > 1e20)
+
+
+def test_ground_only_scene_answers_as_the_kernel_does():
+    """A scene of the ground alone (or of nothing) is answered without a launch: the same distances and normals,
+    bit for bit, as the kernel gives with a box too far away to matter."""
+    rng = np.random.default_rng(3)
+    pts = rng.normal(scale=2.0, size=(500, 3))
+    far_box = StaticBox(center_m=(1e6, 0.0, 0.0), half_extents_m=(0.5, 0.5, 0.5))
+    for ground in (True, False):
+        sdf, normal = StaticScene(ground=ground).query(pts)
+        sdf_k, normal_k = StaticScene(ground=ground, boxes=(far_box,)).query(pts)
+        if ground:
+            np.testing.assert_array_equal(sdf, sdf_k)
+            np.testing.assert_array_equal(sdf, pts[:, 2])
+        else:  # nothing: the empty scene's far distance (the kernel's box is nearer than that)
+            assert np.all(sdf == 1e30) and np.all(sdf_k < 1e30)
+        np.testing.assert_array_equal(normal, np.tile([0.0, 0.0, 1.0], (500, 1)))
+        if ground:
+            np.testing.assert_array_equal(normal, normal_k)
