@@ -1070,16 +1070,14 @@ class SubstepResult:
             return self
         from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
-        forces = [
-            ContactForces(f.scene_force_n[slots], f.scene_normals[slots], f.sphere_positions_m[slots],
-                          f.pair_force_i_n[p0:p1], f.pair_normals[p0:p1])  # fmt: skip
-            for f in self.forces[:num_sub]
-        ]
-        return SubstepResult(
-            self.tm[slots], self.tmdot[slots], self.iterations[:num_sub], self.counters, forces,
+        stacked = (
             self.scene_force_n[:num_sub, slots], self.scene_normals[:num_sub, slots],
             self.sphere_positions_m[:num_sub, slots], self.pair_force_i_n[:num_sub, p0:p1],
             self.pair_normals[:num_sub, p0:p1],
+        )  # fmt: skip
+        forces = [ContactForces(*(t[j] for t in stacked)) for j in range(num_sub)]  # views of the stacked rows
+        return SubstepResult(
+            self.tm[slots], self.tmdot[slots], self.iterations[:num_sub], self.counters, forces, *stacked,
             None if self.scene_sums is None else self.scene_sums[:num_sub, slots],
             None if self.pair_sums is None or groups is None else self.pair_sums[:num_sub, groups[0]:groups[1]],
         )  # fmt: skip

@@ -415,11 +415,10 @@ class ImplicitEulerSolver:
         stats.islands = len(islands)
         stats.awake_objects = sum(len(isl) for isl in islands)
         self._record_spheres = record_sphere_forces
-        for b, asleep in zip(self.bodies, self.state.asleep):
-            if not asleep:
-                b.static_force_n = torch.zeros_like(b.static_force_n)
-            if record_sphere_forces:
-                b.reset_step_forces()
+        if record_sphere_forces:  # a sleeper's records start from its frozen scene forces; every awake object is
+            for b, asleep in zip(self.bodies, self.state.asleep):  # in an island, whose solve writes its records
+                if asleep:  # and its scene forces anew
+                    b.reset_step_forces()
         supported = np.zeros(len(self.bodies), dtype=bool)
         by_substeps: dict[tuple[int, bool], list[list[int]]] = {}
         for island, num_sub in zip(islands, self._island_substeps(contacts, positions, speeds)):
@@ -664,7 +663,7 @@ class ImplicitEulerSolver:
         is_member[members] = True
         sel = pairs if len(pairs) else np.zeros((0, 2), dtype=np.int64)
         inside = is_member[self.broad_phase.point_object[sel]]  # (P, 2)
-        touching = inside.any(axis=1)
+        touching = inside[:, 0] | inside[:, 1]
         sel = sel[touching]
         swap = ~inside[touching, 0]  # orient every pair so that side i is an island member
         return np.where(swap, sel[:, 1], sel[:, 0]), np.where(swap, sel[:, 0], sel[:, 1])
