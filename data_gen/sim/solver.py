@@ -669,14 +669,16 @@ class ImplicitEulerSolver:
         return np.where(swap, sel[:, 1], sel[:, 0]), np.where(swap, sel[:, 0], sel[:, 1])
 
     def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor], h_s: float,
-                      within_substep: bool = True, start_state: bool = True) -> _PairSet:  # fmt: skip
+                      within_substep: bool = True, start_state: bool = True,
+                      members: list[int] | None = None) -> _PairSet:  # fmt: skip
         """The pair set of a (sub)step of ``h_s`` s from the members' candidate pairs (:meth:`_member_pairs`) and
         the current sphere positions (m); in a sub-step, only the pairs that can touch within it unless not
         ``within_substep`` (all the step's candidates: they serve every sub-step). Without ``start_state`` the
         start data of side i and of the pair (``x0_i``, ``normal0``, ``lam_n``: None) are left to the caller,
-        as the fused sub-steps compute them in their launch; ``x0_j`` stays (a sleeping side j's positions)."""
-        if not start_state and not within_substep:
-            return self._pair_set_without_start(gi, gj, positions, h_s)
+        as the fused sub-steps compute them in their launch; ``x0_j`` stays (a sleeping side j's positions; with
+        ``members``, the island objects side i is on, only where side j is off them)."""
+        if not start_state and not within_substep and members is not None:
+            return self._pair_set_without_start(gi, gj, positions, h_s, members)
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
         if len(gi) and h_s < self.dt and within_substep:
             # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
@@ -707,16 +709,16 @@ class ImplicitEulerSolver:
         return oi, gi - bp.offsets[oi], oj, gj - bp.offsets[oj], k, mu, rs
 
     def _pair_set_without_start(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor],
-                                h_s: float) -> _PairSet:  # fmt: skip
+                                h_s: float, members: list[int]) -> _PairSet:  # fmt: skip
         """:meth:`_island_pairs` of a whole step's candidates without start data (the fused sub-steps compute
-        them): ``x0_j`` holds side j's position where side j is off the pairs' side-i objects (a sleeping partner,
-        frozen in the solve) and zero elsewhere (nothing reads it there)."""
+        them): ``x0_j`` holds side j's position where side j is off the island objects ``members`` (a sleeping
+        partner, frozen in the solve) and zero elsewhere (nothing reads it there)."""
         oi, li, oj, lj, k, mu, rs = self._pair_columns(gi, gj, h_s)
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
         x0j = torch.zeros(len(gj), 3, dtype=DTYPE)
-        side_i = np.zeros(len(self.bodies), dtype=bool)
-        side_i[oi] = True
-        off = np.flatnonzero(~side_i[oj])
+        member = np.zeros(len(self.bodies), dtype=bool)
+        member[members] = True
+        off = np.flatnonzero(~member[oj])
         if len(off):
             rows = torch.from_numpy(off)
             x0j[rows] = torch.cat(positions)[gj_t[rows]]
@@ -916,7 +918,7 @@ class ImplicitEulerSolver:
         for num_sub, group in parts:
             members = [k for island in group for k in island]
             ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, self.dt / num_sub,
-                                    within_substep=False, start_state=False)  # fmt: skip
+                                    within_substep=False, start_state=False, members=members)  # fmt: skip
             part_pairs.append(ps)
             slots.append(torch.from_numpy(slot_of[members]))
             rows.append((p0, p0 + len(ps.obj_i)))
