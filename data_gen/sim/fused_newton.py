@@ -26,8 +26,9 @@ so this path suits many small islands; large islands want the batched path.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import OrderedDict
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -67,6 +68,8 @@ _ONE = wp.constant(wp.float64(1.0))
 STATUS, ITERATIONS, CONVERGED, EVALUATIONS, EVALUATIONS_WITH_DERIVATIVES = 0, 1, 2, 3, 4
 LINE_SEARCH_FAILURES, LINE_SEARCH_EXTENDED, TRUST_LIMITED = 5, 6, 7
 NUM_STATS = 8
+# island-sized work buffers are kept for this many (islands, unknowns) shapes (FusedNewton.relayout)
+_SCRATCH_SHAPES = 8
 # ``derivatives`` of _evaluate: the gradient and only the contact part of the Newton matrix
 CONTACT_MATRIX_ONLY = wp.constant(2)
 # STATUS values
@@ -1121,6 +1124,7 @@ class FusedNewton:
         wp.init()
         self.contact = contact
         self.device = contact.device
+        self._island_scratch: OrderedDict[tuple[int, int], tuple[dict, dict]] = OrderedDict()
         n = model.num_objects
         i32 = torch.int32
         self._model = model
@@ -1196,12 +1200,11 @@ class FusedNewton:
     def relayout(self, layout: DofLayout, island_mass_kg: torch.Tensor, min_median_radius_m: torch.Tensor) -> None:
         """The same objects (in the same order) grouped into other islands: ``layout`` with its islands' masses
         (kg) and smallest median contact radii (m). The per-object buffers and the contact object's pair buffers
-        are kept; the island-sized ones are rebuilt (a grouping costs a fraction of a new workspace)."""
+        are kept; the island-sized ones are rebuilt, or taken cleared from an earlier grouping of the same shape (a
+        grouping costs a fraction of a new workspace)."""
         n_isl, size = layout.num_islands, layout.island_size
         self.shape = (n_isl, size)
         i32 = torch.int32
-        dev = self.tm.device
-        like = dict(dtype=self.tm.dtype, device=dev)
         counts = torch.bincount(layout.island, minlength=n_isl)
         object_start = torch.zeros(n_isl + 1, dtype=torch.int64)
         object_start[1:] = torch.cumsum(counts, 0)
@@ -1216,36 +1219,53 @@ class FusedNewton:
             self._keep[key] = value.contiguous()
             setattr(bd, key, _wp(self._keep[key]))
         bd.island_size = int(size)
-        self.q = torch.zeros(n_isl * size, **like)
-        self.trial_q = torch.zeros_like(self.q)
-        self.dq = torch.zeros_like(self.q)
-        self.grad = torch.zeros_like(self.q)
-        self.hess = torch.zeros(n_isl * size * size, **like)
-        self.chol = torch.zeros_like(self.hess)
+        scratch, arrays = self._island_scratch_of(n_isl, size)
+        for name, tensor in scratch.items():
+            setattr(self, name, tensor)
         self.band.zero_()  # the new matrix is zero everywhere
         self.island_of = layout.island
-        self.pair_start = torch.zeros(n_isl + 1, dtype=i32, device=dev)
-        self.live_count = torch.zeros(n_isl, dtype=i32, device=dev)
-        self.first = torch.zeros(n_isl * size, dtype=i32, device=dev)
-        self.stats = torch.zeros(n_isl, NUM_STATS, dtype=i32, device=dev)
-        self.threshold = torch.zeros(n_isl, **like)
-        self.trust = torch.zeros(n_isl, **like)
-        self.h2 = torch.zeros(n_isl, **like)  # s^2 per island
-        self.sub_h = torch.zeros(n_isl, **like)  # the sub-steps (s) and their number, per island
-        self.sub_count = torch.zeros(n_isl, dtype=i32, device=dev)
         wk = self.work
         wk.q, wk.trial_q, wk.grad, wk.hess, wk.chol, wk.dq = (
-            _wp(t) for t in (self.q, self.trial_q, self.grad, self.hess, self.chol, self.dq)
+            arrays[name] for name in ("q", "trial_q", "grad", "hess", "chol", "dq")
         )
-        wk.first, wk.stats = _wp(self.first), _wp(self.stats)
-        self._limits = [_wp(self.threshold), _wp(self.trust)]
+        wk.first, wk.stats = arrays["first"], arrays["stats"]
+        self._limits = [arrays["threshold"], arrays["trust"]]
         st = self._step
-        st.live_count, st.h2 = _wp(self.live_count), _wp(self.h2)
+        st.live_count, st.h2 = arrays["live_count"], arrays["h2"]
         if self._pair_capacity >= 0:  # pair buffers already bound: their island order and starts anew
-            st.pair_start = _wp(self.pair_start)
+            st.pair_start = arrays["pair_start"]
         self._identity_pairs = 0
         if self._substeps is not None:  # the sub-step buffers stay; their per-island ones are rebound
             self._bind_island_substeps(self._substeps, self.sub_stats.shape[0])
+
+    def _island_scratch_of(self, n_isl: int, size: int) -> tuple[dict[str, torch.Tensor], dict[str, wp.array]]:
+        """The island-sized work buffers of ``n_isl`` islands of ``size`` unknowns, all zero as if new, and their
+        warp views: kept per shape for the ``_SCRATCH_SHAPES`` shapes used last (a pile's regroupings repeat
+        a few shapes; a new warp view costs more than clearing a buffer)."""
+        key = (n_isl, size)
+        entry = self._island_scratch.get(key)
+        if entry is not None:
+            self._island_scratch.move_to_end(key)
+            for tensor in entry[0].values():
+                tensor.zero_()
+            return entry
+        like = dict(dtype=self.tm.dtype, device=self.tm.device)
+        ints = dict(dtype=torch.int32, device=self.tm.device)
+        scratch = {
+            "q": torch.zeros(n_isl * size, **like), "trial_q": torch.zeros(n_isl * size, **like),
+            "dq": torch.zeros(n_isl * size, **like), "grad": torch.zeros(n_isl * size, **like),
+            "hess": torch.zeros(n_isl * size * size, **like), "chol": torch.zeros(n_isl * size * size, **like),
+            "pair_start": torch.zeros(n_isl + 1, **ints), "live_count": torch.zeros(n_isl, **ints),
+            "first": torch.zeros(n_isl * size, **ints), "stats": torch.zeros(n_isl, NUM_STATS, **ints),
+            "threshold": torch.zeros(n_isl, **like), "trust": torch.zeros(n_isl, **like),
+            "h2": torch.zeros(n_isl, **like),  # s^2 per island
+            "sub_h": torch.zeros(n_isl, **like), "sub_count": torch.zeros(n_isl, **ints),  # sub-steps (s), count
+        }  # fmt: skip
+        entry = (scratch, {name: _wp(tensor) for name, tensor in scratch.items()})
+        self._island_scratch[key] = entry
+        while len(self._island_scratch) > _SCRATCH_SHAPES:
+            self._island_scratch.popitem(last=False)
+        return entry
 
     def _step_data(self, objective: StepObjective) -> StepData:
         """The step's data for the kernels: ``objective``'s states, gravity and h^2, and the contact data of
@@ -1518,7 +1538,8 @@ class FusedNewton:
         """The per-island parts of ``ss``: counters for ``count`` sub-steps, each island's sub-step and count."""
         self.sub_stats = torch.zeros(count, self.shape[0], NUM_STATS, dtype=torch.int32, device=self.q.device)
         ss.stats = _wp(self.sub_stats)
-        ss.h, ss.num_sub = _wp(self.sub_h), _wp(self.sub_count)
+        arrays = self._island_scratch[self.shape][1]
+        ss.h, ss.num_sub = arrays["sub_h"], arrays["sub_count"]
 
     def forces(self) -> ContactForces:
         """The contact forces of the last :meth:`solve`'s result (it must have returned a result): what
