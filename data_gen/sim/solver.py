@@ -261,7 +261,7 @@ class _PairSet:
     stiffness_n_m: torch.Tensor
     radius_sum_m: torch.Tensor
     mu: torch.Tensor
-    lam_n: torch.Tensor | None  # None: start data left to the fused sub-steps (``_island_pairs(start_state=False)``)
+    lam_n: torch.Tensor | None  # None: start data left to the fused sub-steps (``_pair_set_without_start``)
     normal0: torch.Tensor | None
     x0_i: torch.Tensor | None
     x0_j: torch.Tensor
@@ -669,16 +669,11 @@ class ImplicitEulerSolver:
         return np.where(swap, sel[:, 1], sel[:, 0]), np.where(swap, sel[:, 0], sel[:, 1])
 
     def _island_pairs(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor], h_s: float,
-                      within_substep: bool = True, start_state: bool = True,
-                      members: list[int] | None = None) -> _PairSet:  # fmt: skip
+                      within_substep: bool = True) -> _PairSet:  # fmt: skip
         """The pair set of a (sub)step of ``h_s`` s from the members' candidate pairs (:meth:`_member_pairs`) and
-        the current sphere positions (m); in a sub-step, only the pairs that can touch within it unless not
-        ``within_substep`` (all the step's candidates: they serve every sub-step). Without ``start_state`` the
-        start data of side i and of the pair (``x0_i``, ``normal0``, ``lam_n``: None) are left to the caller,
-        as the fused sub-steps compute them in their launch; ``x0_j`` stays (a sleeping side j's positions; with
-        ``members``, the island objects side i is on, only where side j is off them)."""
-        if not start_state and not within_substep and members is not None:
-            return self._pair_set_without_start(gi, gj, positions, h_s, members)
+        the current sphere positions (m), with its start data; in a sub-step, only the pairs that can touch within
+        it unless not ``within_substep`` (all the step's candidates). The fused sub-steps, which compute the start
+        data in their launch, take :meth:`_pair_set_without_start` instead."""
         x_all = torch.cat(positions) if positions else torch.zeros(0, 3, dtype=DTYPE)
         if len(gi) and h_s < self.dt and within_substep:
             # a sub-step: keep the step's candidates that can touch within this (shorter) sub-step
@@ -687,8 +682,6 @@ class ImplicitEulerSolver:
         oi, li, oj, lj, k, mu, rs = self._pair_columns(gi, gj, h_s)
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
         x0j = x_all[gj_t]
-        if not start_state:
-            return _PairSet(oi, li, oj, lj, k, rs, mu, None, None, None, x0j, gi_t, gj_t)
         x0i = x_all[gi_t]
         if len(gi):  # the frozen normal force and normal of the start state
             depth, n0 = pair_depth(x0i, x0j, rs)
@@ -710,8 +703,8 @@ class ImplicitEulerSolver:
 
     def _pair_set_without_start(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor],
                                 h_s: float, members: list[int]) -> _PairSet:  # fmt: skip
-        """:meth:`_island_pairs` of a whole step's candidates without start data (the fused sub-steps compute
-        them): ``x0_j`` holds side j's position where side j is off the island objects ``members`` (a sleeping
+        """:meth:`_island_pairs` of a whole step's candidates (they serve every sub-step) without start data (the
+        fused sub-steps compute them: ``x0_i``, ``normal0``, ``lam_n`` None): ``x0_j`` holds side j's position where side j is off the island objects ``members`` (a sleeping
         partner, frozen in the solve) and zero elsewhere (nothing reads it there)."""
         oi, li, oj, lj, k, mu, rs = self._pair_columns(gi, gj, h_s)
         gi_t, gj_t = torch.from_numpy(gi), torch.from_numpy(gj)
@@ -917,8 +910,8 @@ class ImplicitEulerSolver:
         nb = len(self.bodies)
         for num_sub, group in parts:
             members = [k for island in group for k in island]
-            ps = self._island_pairs(*self._member_pairs(members, pairs_all), positions, self.dt / num_sub,
-                                    within_substep=False, start_state=False, members=members)  # fmt: skip
+            ps = self._pair_set_without_start(*self._member_pairs(members, pairs_all), positions, self.dt / num_sub,
+                                              members)  # fmt: skip
             part_pairs.append(ps)
             slots.append(torch.from_numpy(slot_of[members]))
             rows.append((p0, p0 + len(ps.obj_i)))
@@ -1009,18 +1002,10 @@ class ImplicitEulerSolver:
             sleeping_c = group_c[live][self.state.asleep[group_c[live]]]
             supported[sleeping_c] = True
         supported[np.asarray(objects)[touching.any(0)]] = True
-        # sub-step by sub-step the scene contacts, then the object pairs (as :meth:`_add_object_pair_statistics`:
-        # keyed (smaller id, larger id), force and normal from the smaller id's side), all at once
-        id_a, id_c = self._object_id[group_a], self._object_id[group_c]
-        flip = np.where(id_a > id_c, -1.0, 1.0)[None, :, None]
-        pair_total = pair_sums[..., 0:3] * flip
-        weight = pair_sums[..., 9:10]
-        pair_pos = np.divide(pair_sums[..., 3:6], weight, out=np.zeros_like(pair_total), where=weight > 0)
-        pair_nrm = pair_sums[..., 6:9] * flip
-        pair_nrm = pair_nrm / np.maximum(np.sqrt((pair_nrm[..., None, :] @ pair_nrm[..., :, None])[..., 0]), 1e-300)
-        keys = [(int(i), 0) for i in ids] + list(zip(np.minimum(id_a, id_c).tolist(), np.maximum(id_a, id_c).tolist()))
+        # sub-step by sub-step the scene contacts, then the object pairs, all at once
+        pair_keys, pair_total, pair_pos, pair_nrm = self._object_pair_entries(group_a, group_c, pair_sums)
         stats.add_pair_force_series(
-            keys,
+            [(int(i), 0) for i in ids] + pair_keys,
             np.concatenate([total_np, pair_total], axis=1),
             np.concatenate([pos_np, pair_pos], axis=1),
             np.concatenate([nrm_np, pair_nrm], axis=1),
@@ -1230,13 +1215,25 @@ class ImplicitEulerSolver:
                                     stats: StepStats, h_s: float) -> None:  # fmt: skip
         """Per object pair (a, c) (in order): ``sums`` (10,) = total force on a (N), force-weighted sum of
         contact positions (N m), of normals c -> a (N), and the force magnitudes (N); added to the step
-        statistics keyed (smaller id, larger id), force and normal from the smaller id's side."""
-        total, pos, nrm = sums[:, 0:3], sums[:, 3:6] / sums[:, 9:10], sums[:, 6:9]
+        statistics (:meth:`_object_pair_entries`)."""
+        keys, total, pos, nrm = self._object_pair_entries(obj_a, obj_c, sums)
+        stats.add_pair_force_series(keys, total[None], pos[None], nrm[None], np.ones((1, len(keys)), dtype=bool), h_s)
+
+    def _object_pair_entries(self, obj_a: np.ndarray, obj_c: np.ndarray,
+                             sums: np.ndarray) -> tuple[list[tuple[int, int]], np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        """The step statistics' entries of object pairs (a, c) (G,) from their sums (..., G, 10) (as
+        :meth:`_add_object_pair_statistics` reads them): keys (smaller id, larger id) and, per pair, the total force
+        on the smaller id (N), the force-weighted contact position (m; zero where no force acts) and the unit
+        normal from the smaller id's side (..., G, 3)."""
         id_a, id_c = self._object_id[obj_a], self._object_id[obj_c]
-        for g in range(len(obj_a)):  # loop over object pairs: events are keyed (smaller id, larger id)
-            total_g, nrm_g = (-total[g], -nrm[g]) if id_a[g] > id_c[g] else (total[g], nrm[g])  # on the smaller
-            key = (int(min(id_a[g], id_c[g])), int(max(id_a[g], id_c[g])))
-            stats.add_pair_force(key, total_g, pos[g], nrm_g / max(float(np.linalg.norm(nrm_g)), 1e-300), h_s)
+        flip = np.where(id_a > id_c, -1.0, 1.0)[:, None]  # events are keyed (smaller id, larger id)
+        total = sums[..., 0:3] * flip
+        weight = sums[..., 9:10]
+        pos = np.divide(sums[..., 3:6], weight, out=np.zeros_like(total), where=weight > 0)
+        nrm = sums[..., 6:9] * flip
+        nrm = nrm / np.maximum(np.sqrt((nrm[..., None, :] @ nrm[..., :, None])[..., 0]), 1e-300)
+        keys = list(zip(np.minimum(id_a, id_c).tolist(), np.maximum(id_a, id_c).tolist()))
+        return keys, total, pos, nrm
 
 
     def _add_sphere_records(self, obj_a: np.ndarray, obj_c: np.ndarray, oi: np.ndarray, oj: np.ndarray,

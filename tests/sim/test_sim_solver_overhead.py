@@ -525,8 +525,7 @@ def test_pair_set_without_start_data_keeps_what_the_fused_launch_reads():
     partner = rng.choice([0, 1, 2, 3], size=len(gi))
     gj = np.array([rng.integers(offsets[o], offsets[o + 1]) for o in partner])
     full = solver._island_pairs(gi, gj, positions, 0.0025, within_substep=False)
-    lean = solver._island_pairs(gi, gj, positions, 0.0025, within_substep=False, start_state=False,
-                                members=members)
+    lean = solver._pair_set_without_start(gi, gj, positions, 0.0025, members)
     for name in ("obj_i", "loc_i", "obj_j", "loc_j"):
         np.testing.assert_array_equal(getattr(lean, name), getattr(full, name))
     for name in ("stiffness_n_m", "radius_sum_m", "mu", "global_i", "global_j"):
