@@ -313,6 +313,10 @@ MUTANTS: tuple[Mutant, ...] = (
            "                    if derivatives == 1:  # (CONTACT_MATRIX_ONLY: the mass matrix is in the caller's kept base)",
            "                    if derivatives != 0:  # (CONTACT_MATRIX_ONLY: the mass matrix is in the caller's kept base)",
            tests=("tests/sim/test_sim_fused_newton.py::test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms",)),
+    Mutant("kernel_evaluation_deformable_cross_block_sign_flipped", "data_gen/sim/fused_newton.py",
+           "_add_object_block(hess, n_size, matrix_base, bd.b, oi, si, cols_i, li, oj, sj, cols_j, lj, -hs)",
+           "_add_object_block(hess, n_size, matrix_base, bd.b, oi, si, cols_i, li, oj, sj, cols_j, lj, hs)",
+           tests=("tests/sim/test_sim_fused_newton.py::test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms",)),
     Mutant("kernel_evaluation_keeps_a_base_from_before_a_projection", "data_gen/sim/step_objective.py",
            "        if self.evaluator is not None and self._all_elastic_kept(el.hess):\n            self._kept_base = base\n",
            "        if self.evaluator is not None and self._all_elastic_kept(el.hess) and self._kept_base is None:\n"
