@@ -1217,6 +1217,10 @@ class FusedNewton:
         self._substeps: Substeps | None = None
         self._bound_objective: StepObjective | None = None  # evaluate_bound: the objective whose step is bound
         self._bound_step: StepData | None = None
+        # evaluate_bound's launches, packed once per mode (0 / CONTACT_MATRIX_ONLY) and replayed: warp packs a
+        # struct argument by reference (a new objective's step data, written into the same StepData, is what the
+        # replay reads); the launch dimension and the output arrays are fixed until a regrouping changes them
+        self._bound_launches: dict[int, wp.Launch] = {}
         self._value = torch.zeros(layout.num_islands, dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self._flagged = torch.zeros(layout.num_islands, dtype=torch.int32, device=model.mass_kg.device)
         self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
@@ -1247,6 +1251,7 @@ class FusedNewton:
             self._keep[key] = value.contiguous()
             setattr(bd, key, _wp(self._keep[key]))
         bd.island_size = int(size)
+        self._bound_launches.clear()  # packed with the previous grouping's arrays
         scratch, arrays = self._island_scratch_of(n_isl, size)
         for name, tensor in scratch.items():
             setattr(self, name, tensor)
@@ -1387,14 +1392,20 @@ class FusedNewton:
         if self._value.shape[0] != n_isl:  # regrouped (relayout) since the outputs were made
             self._value, self._flagged = self._value.new_zeros(n_isl), self._flagged.new_zeros(n_isl)
             self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
+            self._bound_launches.clear()
         if self._bound_objective is not objective:
             self._bound_step = self._step_data(objective)
             self._bound_objective = objective
         self.q.copy_(q.reshape(-1))
-        mode = CONTACT_MATRIX_ONLY if derivatives else 0
-        wp.launch(evaluate_islands_kernel, dim=n_isl, device=self.device, inputs=[
-            self.bodies, self.scene, self._bound_step, self.work, int(mode), self._value_wp, self._flagged_wp,
-        ])  # fmt: skip
+        mode = int(CONTACT_MATRIX_ONLY if derivatives else 0)
+        launch = self._bound_launches.get(mode)
+        if launch is None:
+            launch = self._bound_launches[mode] = wp.launch(
+                evaluate_islands_kernel, dim=n_isl, device=self.device, record_cmd=True, inputs=[
+                    self.bodies, self.scene, self._bound_step, self.work, mode, self._value_wp, self._flagged_wp,
+                ],
+            )  # fmt: skip
+        launch.launch()
         value = self._value.clone()
         if not derivatives:
             return value, None, None

@@ -119,6 +119,45 @@ def test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms(scene)
     torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
 
 
+def test_kernel_evaluation_follows_the_next_objective_on_the_same_workspace():
+    """The solver builds one objective per (sub)step on a kept workspace: the kernel's launches (packed once per
+    bound objective and replayed) must take the new objective's step length, rates and contact data, not the
+    previous one's. The second objective has another h and other rates: its kernel evaluations equal its
+    batched terms."""
+    model, layout, distance, _, _, pairs, tm = _setup(SCENES[0], 3, (3, 2, 4))
+    gen = torch.Generator().manual_seed(11)
+    rates = []
+    for speed in (0.3, 0.8):
+        tmdot = torch.zeros_like(tm)
+        for o in range(model.num_objects):
+            cols = 4 * int(model.num_handles[o])
+            tmdot[o, :, :cols] = speed * torch.randn(3, cols, generator=gen, dtype=D) / cols
+        rates.append(tmdot)
+
+    def objective(h_s: float, tmdot: torch.Tensor, kernel: bool, workspace=None) -> StepObjective:
+        return StepObjective(model, layout, distance, GRAVITY, tm, tmdot, h_s, 20.0, 0.01 * h_s, pairs,
+                             workspace=workspace, lagged_elastic_hessian=True, kernel_evaluation=kernel)  # fmt: skip
+
+    first = objective(H_S, rates[0], True)
+    q_first = layout.to_islands(tm + H_S * rates[0])
+    first.evaluate(q_first, True)  # forms the kept blocks; the next two evaluations are launches
+    first.evaluate(q_first, True)
+    first.evaluate(q_first, False)
+    h2 = 0.5 * H_S
+    second = objective(h2, rates[1], True, workspace=first.workspace)
+    batched = objective(h2, rates[1], False)
+    q = layout.to_islands(tm + h2 * rates[1]) + 1e-3 * torch.randn(q_first.shape, generator=gen, dtype=D)
+    launches = second.evaluator.evaluate_bound = mock.Mock(wraps=second.evaluator.evaluate_bound)
+    ref = batched.evaluate(q, True)
+    torch.testing.assert_close(second.evaluate(q, False).value, ref.value, rtol=1e-12, atol=0.0)
+    second.evaluate(q, True)
+    ev = second.evaluate(q, True)
+    assert launches.call_count == 2  # without derivatives, then with derivatives once the blocks are kept
+    torch.testing.assert_close(ev.value, ref.value, rtol=1e-12, atol=0.0)
+    torch.testing.assert_close(ev.grad, ref.grad, rtol=0.0, atol=1e-10 * float(ref.grad.abs().amax()))
+    torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
+
+
 def _captured_solves(max_solves: int = 40, throw: bool = False):
     """Real (sub)step solves of the stack below (one-handle boxes falling, landing on the ground and on each
     other, with pairs and friction): the arguments the solver passed to ``minimise`` (batched path)."""
