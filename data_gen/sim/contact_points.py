@@ -216,3 +216,39 @@ class ContactPoints:
         out = torch.full((self.num_cubature,), no_partner, dtype=torch.int64)
         out[self.cubature_index[is_best]] = partner[is_best]
         return force, out
+
+
+class CubatureGather:
+    """:meth:`ContactPoints.to_cubature` of several objects at once: their spheres' forces, partners and
+    strengths concatenated (object order) go to their cubature points through one global index (each object's
+    ``cubature_index`` plus the cubature points of the objects before it). Each point sums the same spheres in
+    the same order and takes the same partner, so the per-object results are equal bit for bit."""
+
+    def __init__(self, contacts: list[ContactPoints]) -> None:
+        counts = [c.num_cubature for c in contacts]
+        offsets = [0]
+        for count in counts:
+            offsets.append(offsets[-1] + count)
+        self.counts = counts
+        self.total = offsets[-1]
+        self.index = (
+            torch.cat([c.cubature_index + offsets[k] for k, c in enumerate(contacts)])
+            if contacts
+            else torch.zeros(0, dtype=torch.int64)
+        )
+
+    def to_cubature(self, force_n: list[torch.Tensor], partner: list[torch.Tensor], strength_n: list[torch.Tensor],
+                    no_partner: int) -> list[tuple[torch.Tensor, torch.Tensor]]:  # fmt: skip
+        """Per object its (m,3) N cubature forces and (m,) dominant partners from its spheres' (k,3) forces, (k,)
+        partners and (k,) strengths (N)."""
+        if not self.counts:
+            return []
+        index = self.index
+        strength = torch.cat(strength_n)
+        force = torch.zeros(self.total, 3, dtype=DTYPE).index_add_(0, index, torch.cat(force_n))
+        best = torch.zeros(self.total, dtype=DTYPE).scatter_reduce(0, index, strength, reduce="amax", include_self=True)
+        is_best = (strength > 0) & (strength == best[index])
+        out = torch.full((self.total,), no_partner, dtype=torch.int64)
+        out[index[is_best]] = torch.cat(partner)[is_best]
+        return list(zip(force.split(self.counts), out.split(self.counts)))
+

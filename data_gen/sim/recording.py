@@ -350,6 +350,122 @@ class ObjectFrameConstants:
 _IDENTITY_C = torch.cat([torch.eye(3), torch.zeros(1, 3)])  # (4, 3) deformation basis of one affine handle
 
 
+@dataclass(frozen=True)
+class OneHandleGroup:
+    """Objects of one affine handle (a uniform F, ``ObjectFrameConstants.uniform_f``) with the same numbers of
+    cubature points P and contact spheres S: their frame records taken in batched array operations, the same
+    formulas as :func:`_object_frame` applied to stacked (m, ...) arrays (one pass per frame instead of m).
+
+    Attributes:
+        members: (m,) object indices (recorder order).
+        points_rest_m, points_b: (m, P, 3) cubature rest positions, m, and (m, P, 4) their basis rows.
+        spheres_rest_m, spheres_b: (m, S, 3) contact sphere rest centres, m, and (m, S, 4) their basis rows.
+        contact_radius_m: (m, S) m.
+        second_moment, com_rest_m, mean_basis, mass_kg: the members' :class:`InertiaMoments`, stacked.
+        volume_m3: (m,) m^3.  mu_pa, lam_pa: (m,) Lame parameters, Pa.
+        z_from_q: (12,) the one-handle ``q_to_z`` index (the same for every member).
+    """
+
+    members: np.ndarray
+    points_rest_m: torch.Tensor
+    points_b: torch.Tensor
+    spheres_rest_m: torch.Tensor
+    spheres_b: torch.Tensor
+    contact_radius_m: np.ndarray
+    second_moment: np.ndarray
+    com_rest_m: np.ndarray
+    mean_basis: np.ndarray
+    mass_kg: np.ndarray
+    volume_m3: np.ndarray
+    mu_pa: torch.Tensor
+    lam_pa: torch.Tensor
+    z_from_q: np.ndarray
+
+    @classmethod
+    def groups_of(cls, models: list[ReducedObject], contacts: list[ContactPoints],
+                  constants: list[ObjectFrameConstants]) -> list[OneHandleGroup]:  # fmt: skip
+        """The one-handle objects of a recorder, grouped by (P, S); objects of more handles are in none."""
+        by_shape: dict[tuple[int, int], list[int]] = {}
+        for k, (model, contact, const) in enumerate(zip(models, contacts, constants)):
+            if const.uniform_f and model.num_handles == 1:
+                by_shape.setdefault((model.num_points, contact.num_points), []).append(k)
+        out = []
+        for members in by_shape.values():
+            ms = [models[k] for k in members]
+            cs = [contacts[k] for k in members]
+            mo = [constants[k].moments for k in members]
+            out.append(cls(
+                members=np.array(members),
+                points_rest_m=torch.stack([m.points_rest for m in ms]),
+                points_b=torch.stack([m.b for m in ms]),
+                spheres_rest_m=torch.stack([c.rest_m for c in cs]),
+                spheres_b=torch.stack([c.b for c in cs]),
+                contact_radius_m=np.stack([constants[k].contact_radius_m for k in members]),
+                second_moment=np.stack([x.second_moment for x in mo]),
+                com_rest_m=np.stack([x.com_rest_m for x in mo]),
+                mean_basis=np.stack([x.mean_basis for x in mo]),
+                mass_kg=np.array([x.mass_kg for x in mo]),
+                volume_m3=np.array([constants[k].volume_m3 for k in members]),
+                mu_pa=torch.tensor([float(m.mu_pa) for m in ms], dtype=DTYPE),
+                lam_pa=torch.tensor([float(m.lam_pa) for m in ms], dtype=DTYPE),
+                z_from_q=constants[members[0]].z_from_q,
+            ))  # fmt: skip
+        return out
+
+    def frames(self, qs: list[torch.Tensor], qdots: list[torch.Tensor], with_sphere_forces: bool,
+               sphere_forces: list[torch.Tensor] | None) -> tuple[dict[str, np.ndarray], list[RigidFrame]]:  # fmt: skip
+        """The members' per-frame arrays stacked (m, ...) (keys of :func:`_object_frame`'s record but the
+        per-object constants and copies) and their :class:`RigidFrame`\\s."""
+        members = self.members
+        q = torch.stack([qs[k] for k in members])  # (m, 12)
+        tm = q.reshape(len(members), 3, 4)
+        # positions member by member, as ReducedObject.positions and ContactPoints.positions take them (a batched
+        # product may sum in another order: the records would move by an ulp)
+        x = torch.stack([torch.mm(self.points_b[i], tm[i].T) for i in range(len(members))]).add_(self.points_rest_m)
+        sphere_x = torch.stack([torch.mm(self.spheres_b[i], tm[i].T) for i in range(len(members))])
+        sphere_x = sphere_x.add_(self.spheres_rest_m).numpy()  # (m, S, 3)
+        tm_np = tm.numpy()
+        tmdot = torch.stack([qdots[k] for k in members]).numpy().reshape(len(members), 3, 4)
+        # F = I + Tm C with C = [I; 0]: I + Tm's first three columns (the products with C's zeros add nothing)
+        f = np.eye(3) + tm_np[:, :, :3]
+        det_f = det3(f)
+        # InertiaMoments.frame, batched
+        z = self.second_moment
+        moment = z[:, :3] + tm_np @ z[:, 3:]  # (m, 3, 7)
+        spread = moment[:, :, :3] + moment[:, :, 3:] @ tm_np.transpose(0, 2, 1)
+        cross = moment[:, :, 3:] @ tmdot.transpose(0, 2, 1)
+        angular_momentum = np.stack(
+            [cross[:, 1, 2] - cross[:, 2, 1], cross[:, 2, 0] - cross[:, 0, 2], cross[:, 0, 1] - cross[:, 1, 0]], axis=1
+        )
+        trace = spread[:, 0, 0] + spread[:, 1, 1] + spread[:, 2, 2]
+        inertia = trace[:, None, None] * np.eye(3) - spread
+        spin = ((tmdot @ z[:, 3:, 3:]) * tmdot).reshape(len(members), -1).sum(1)
+        com = self.com_rest_m + (tm_np @ self.mean_basis[:, :, None])[:, :, 0]
+        velocity = (tmdot @ self.mean_basis[:, :, None])[:, :, 0]
+        rigids = [
+            RigidFrame(com[i], velocity[i], moment[i, :, :3] / self.mass_kg[i], inertia[i], angular_momentum[i],
+                       float(spin[i]))  # fmt: skip
+            for i in range(len(members))
+        ]
+        if with_sphere_forces:  # the mean stress theorem (rigid_mean_hydrostatic_from_spin_pa), per member
+            force = np.stack([sphere_forces[k].numpy() for k in members])  # (m, S, 3)
+            magnitude = np.sqrt((force * force).sum(2))[:, :, None]
+            where = sphere_x - self.contact_radius_m[:, :, None] * force / np.maximum(magnitude, 1e-300)
+            virial = ((where - com[:, None, :]) * force).reshape(len(members), -1).sum(1)
+            mean = (virial + spin) / (3.0 * self.volume_m3)
+        else:  # the uniform F's hydrostatic stress
+            mean = mat.hydrostatic_stress(torch.from_numpy(f), self.mu_pa, self.lam_pa).numpy()
+        num_points = x.shape[1]
+        arrays = {
+            "handle_transforms": q.numpy()[:, self.z_from_q],
+            "cubature_positions_m": x.numpy(),
+            "contact_positions_m": sphere_x,
+            "hydrostatic_stress_pa": np.repeat(mean[:, None], num_points, axis=1),
+            "det_f": np.repeat(det_f[:, None], num_points, axis=1),
+        }
+        return arrays, rigids
+
+
 class FrameRecorder:
     """Accumulates per-frame arrays of every object while the solver runs."""
 
@@ -366,6 +482,10 @@ class FrameRecorder:
         self.constants = [
             ObjectFrameConstants.of(model, contact, self.gravity) for model, contact in zip(models, contacts)
         ]
+        self.groups = OneHandleGroup.groups_of(models, contacts, self.constants)
+        self._grouped = np.zeros(len(models), dtype=bool)
+        for group in self.groups:
+            self._grouped[group.members] = True
         self.frames: list[list[dict]] = [[] for _ in models]
         self.energies: dict[str, list[float]] = {"kinetic": [], "elastic": [], "contact": [], "gravity": []}
 
@@ -382,14 +502,35 @@ class FrameRecorder:
         """Append one frame.  ``forces``/``partners`` are per cubature point; ``sphere_forces`` (k,3) N per
         contact sphere, when given, set the stress of single-handle (near-rigid) objects, see
         :func:`rigid_mean_hydrostatic_pa`."""
-        frames, rigids = [], []
+        n = len(self.models)
+        frames: list[dict] = [{} for _ in range(n)]
+        rigids: list[RigidFrame | None] = [None] * n
+        for group in self.groups:  # one-handle objects: batched per group
+            arrays, group_rigids = group.frames(qs, qdots, sphere_forces is not None, sphere_forces)
+            for i, k in enumerate(group.members):
+                rigid = rigids[k] = group_rigids[i]
+                frames[k] = {
+                    "handle_transforms": arrays["handle_transforms"][i],
+                    "cubature_positions_m": arrays["cubature_positions_m"][i],
+                    "contact_positions_m": arrays["contact_positions_m"][i],
+                    "gravity_force_n": self.constants[k].gravity_force_n,
+                    "contact_force_n": forces[k].numpy().copy(),
+                    "contact_partner": partners[k].numpy().copy(),
+                    "hydrostatic_stress_pa": arrays["hydrostatic_stress_pa"][i],
+                    "det_f": arrays["det_f"][i],
+                    "com_m": rigid.com_m,
+                    "orientation_wxyz": None,
+                    "velocity_m_s": rigid.velocity_m_s,
+                    "angular_velocity_rad_s": None,
+                    "asleep": np.bool_(asleep[k]),
+                }
         for k, model in enumerate(self.models):
-            frame, rigid = _object_frame(
+            if self._grouped[k]:
+                continue
+            frames[k], rigids[k] = _object_frame(
                 model, self.contacts[k], self.constants[k], qs[k], qdots[k], forces[k], partners[k],
                 asleep[k], None if sphere_forces is None else sphere_forces[k],
             )  # fmt: skip
-            frames.append(frame)
-            rigids.append(rigid)
         if rigids:  # orientations and angular velocities of all objects at once (batched SVD and least squares)
             rotations = rotation_from_cross_covariance(np.stack([r.cross_covariance_m2 for r in rigids]))
             omegas = angular_velocities_from_moments(

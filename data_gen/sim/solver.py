@@ -56,7 +56,7 @@ import numpy as np
 import torch
 
 from data_gen.sim.contact import pair_contact, pair_depth
-from data_gen.sim.contact_points import ContactPoints
+from data_gen.sim.contact_points import ContactPoints, CubatureGather
 from data_gen.sim.contacts import BroadPhase, Contacts
 from data_gen.sim.energy import point_terms
 from data_gen.sim.energy.elastic import elastic
@@ -171,12 +171,6 @@ class SimBody:
         result), as the sphere centres of ``q``; returns it."""
         self._positions_cache = (q, q._version, x_m)
         return x_m
-
-    def cubature_contact(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """This step's contact force (n,3) N and dominant partner (n,) per cubature point."""
-        return self.contact.to_cubature(
-            self.contact_force_n, self.contact_partner, self.partner_strength_n, NO_PARTNER
-        )
 
 
 @dataclass
@@ -338,6 +332,7 @@ class ImplicitEulerSolver:
         self.dt = float(dt_s)
         self.fused_newton = bool(fused_newton)
         self.broad_phase = BroadPhase([b.contact for b in bodies], float(self.gravity.norm()), device)
+        self._cubature_gather = CubatureGather([b.contact for b in bodies])
         self.step_index = 0
         self.timings: dict[str, float] = {"broad_phase": 0.0, "newton": 0.0}
         self.model = Model.build(
@@ -539,6 +534,15 @@ class ImplicitEulerSolver:
             ps = self._island_pairs(*self._member_pairs(members, pairs), positions, self.dt)
             self._record_current_forces(islands, ps, self.dt, stats, supported)
         return stats
+
+    def cubature_contacts(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Per body this step's contact force (n,3) N and dominant partner (n,) per cubature point
+        (:meth:`ContactPoints.to_cubature` of its sphere records), all objects in one pass (the same values)."""
+        b = self.bodies
+        return self._cubature_gather.to_cubature(
+            [x.contact_force_n for x in b], [x.contact_partner for x in b], [x.partner_strength_n for x in b],
+            NO_PARTNER,
+        )  # fmt: skip
 
     def energies(self) -> dict[str, float]:
         """Kinetic, elastic, contact and gravity potential energy (J) of the current state (its pair search is

@@ -313,7 +313,7 @@ class Simulator:
         t0 = time.perf_counter()
         broad_phase_s = solver.timings["broad_phase"]  # the energies' pair search is the next step's broad phase
         b, state = solver.bodies, solver.state
-        per_cubature = [x.cubature_contact() for x in b]
+        per_cubature = solver.cubature_contacts()
         recorder.record(
             list(state.q),
             list(state.qdot),

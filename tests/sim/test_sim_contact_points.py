@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.sim.contact_points import ContactPoints, SurfaceSamples, box_surface, sphere_surface, surface_spheres
+from data_gen.sim.contact_points import (
+    ContactPoints,
+    CubatureGather,
+    SurfaceSamples,
+    box_surface,
+    sphere_surface,
+    surface_spheres,
+)
 from data_gen.sim.material import Material
 from data_gen.sim.presets import load_preset
 from data_gen.sim.static_scene import StaticBox, StaticScene
@@ -98,6 +105,32 @@ def test_contact_forces_map_onto_nearest_cubature_points():
     f, p = cp.to_cubature(force, partner, strength, no_partner=-1)
     np.testing.assert_allclose(f.numpy(), [[0.0, 0.0, 3.0], [0.0, 0.0, 4.0]])
     assert p.tolist() == [3, -1]  # strongest sphere's partner; no strength -> no partner
+
+
+def test_cubature_gather_equals_each_objects_to_cubature():
+    """``CubatureGather`` (all objects' spheres to their cubature points in one pass) gives every object what its
+    own ``to_cubature`` gives, bit for bit: sums in the same order, the strongest sphere's partner, ties between
+    equally strong spheres of one point, and points without contact."""
+    gen = torch.Generator().manual_seed(2)
+    contacts = []
+    for n_cub, n_sph in ((5, 12), (3, 7), (6, 20)):
+        cub = torch.rand(n_cub, 3, generator=gen, dtype=torch.float64)
+        centres = torch.rand(n_sph, 3, generator=gen, dtype=torch.float64).numpy()
+        contacts.append(ContactPoints.build(centres, np.full(n_sph, 0.05), torch.ones(n_sph, 1, dtype=torch.float64), cub))
+    forces = [torch.randn(c.num_points, 3, generator=gen, dtype=torch.float64) for c in contacts]
+    partners = [torch.randint(0, 6, (c.num_points,), generator=gen) for c in contacts]
+    strengths = [torch.randint(0, 3, (c.num_points,), generator=gen).to(torch.float64) for c in contacts]
+    gathered = CubatureGather(contacts).to_cubature(forces, partners, strengths, -1)
+    ties = 0
+    for k, c in enumerate(contacts):
+        f, p = c.to_cubature(forces[k], partners[k], strengths[k], no_partner=-1)
+        assert torch.equal(gathered[k][0], f) and torch.equal(gathered[k][1], p)
+        for point in range(c.num_cubature):
+            top = strengths[k][c.cubature_index == point]
+            ties += int(len(top) > 1 and float(top.max()) > 0 and int((top == top.max()).sum()) > 1)
+    assert ties > 0  # equally strong spheres of one point: the same one wins
+    assert any(bool((g[1] == -1).any()) for g in gathered)  # points without contact
+    assert CubatureGather([]).to_cubature([], [], [], -1) == []
 
 
 def test_fast_ball_does_not_tunnel_through_a_thin_wall():

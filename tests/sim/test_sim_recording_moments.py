@@ -273,3 +273,44 @@ def test_single_matrix_helpers_match_the_batched_functions():
         rotation_from_cross_covariance(np.eye(2))
     f = np.eye(3) + 0.3 * rng.normal(size=(100, 3, 3))
     np.testing.assert_allclose(det3(f), np.linalg.det(f), rtol=1e-13, atol=1e-15)
+
+
+def test_one_handle_groups_record_what_the_per_object_frames_record():
+    """``FrameRecorder`` takes the frames of one-handle objects batched per (cubature points, spheres) group
+    (``OneHandleGroup``): every recorded array of every object equals, bit for bit, what the per-object path
+    (``_object_frame``, the recorder without groups) records, with and without sphere forces, for two groups
+    of one-handle objects (40 and 30 cubature points) beside a 3-handle object that is in no group."""
+    objs = [_object(1, 21, None), _object(3, 22, None), _object(1, 23, 15), _object(1, 24, None)]
+    small = _object(1, 25, None)[0]
+    # a one-handle object with 30 cubature points: its own group
+    x0 = small.points_rest[:30]
+    w = torch.ones(30, 1, dtype=D)
+    obj5 = ReducedObject(x0, small.volumes_m3[:30], 700.0, w, torch.zeros(30, 1, 3, dtype=D), small.mu_pa, small.lam_pa)
+    objs.append((obj5, ContactPoints.build(x0[:12].numpy(), np.full(12, 0.02), w[:12], x0)))
+    models, contacts = [o for o, _ in objs], [c for _, c in objs]
+    n = len(objs)
+    names, ids = [f"o{k}" for k in range(n)], list(range(1, n + 1))
+    grouped = FrameRecorder(names, ids, models, contacts, GRAVITY)
+    single = FrameRecorder(names, ids, models, contacts, GRAVITY)
+    single.groups, single._grouped = [], np.zeros(n, dtype=bool)
+    assert sorted(len(g.members) for g in grouped.groups) == [1, 3]  # 40-point and 30-point one-handle objects
+    assert not grouped._grouped[1]
+    gen = torch.Generator().manual_seed(5)
+    for frame in range(3):
+        states = [_random_state(o, 100 * frame + k) for k, o in enumerate(models)]
+        qs, qdots = [s_[0] for s_ in states], [s_[1] for s_ in states]
+        forces = [torch.randn(o.num_points, 3, generator=gen, dtype=D) for o in models]
+        partners = [torch.randint(-1, 3, (o.num_points,), generator=gen) for o in models]
+        sphere = [torch.randn(c.num_points, 3, generator=gen, dtype=D) for c in contacts]
+        sphere[0][:3] = 0.0  # spheres without contact
+        asleep = [bool(k % 2) for k in range(n)]
+        for rec in (grouped, single):
+            rec.record(qs, qdots, forces, partners, asleep, {}, sphere_forces=sphere if frame != 1 else None)
+    for k in range(n):
+        for a, b in zip(grouped.frames[k], single.frames[k]):
+            assert a.keys() == b.keys()
+            for key in a:
+                np.testing.assert_array_equal(a[key], b[key], err_msg=f"object {k} {key}")
+    stress = [f["hydrostatic_stress_pa"][0] for f in grouped.frames[0]]
+    assert stress[0] != stress[1]  # with sphere forces (mean stress theorem) and without (the uniform F)
+
