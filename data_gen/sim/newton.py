@@ -46,6 +46,10 @@ class Objective(ABC):
     def point_motion(self, dq: torch.Tensor) -> torch.Tensor:
         """Largest contact-sphere displacement (m) per island under the state change dq."""
 
+    def update_norms(self, dq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(:meth:`point_motion`, :meth:`mass_norm`) of one update dq; an objective may share their work."""
+        return self.point_motion(dq), self.mass_norm(dq)
+
 
 @dataclass
 class NewtonSettings:
@@ -162,12 +166,11 @@ def minimise(
         else:
             iterations += active
             dq = dq * active[:, None]
-        motion = objective.point_motion(dq)
+        motion, mass = objective.update_norms(dq)  # mass: |dq|_M, also the step norm's factor below
         alpha = torch.clamp(trust_m / motion.clamp(min=1e-300), max=1.0)
         whole = alpha >= 1.0
         trust_limited += (alpha < 1.0 if all_active else active & (alpha < 1.0)).sum()
         # an update already below the tolerance is taken whole, without a search: the island has converged
-        mass = objective.mass_norm(dq)  # |dq|_M, also the step norm's factor below
         small = whole & (mass <= threshold) if all_active else active & whole & (mass <= threshold)
         accepted = small if all_active else ~active | small  # islands done, or converging now, need no search
         all_accepted = bool(accepted.all())

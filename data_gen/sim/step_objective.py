@@ -205,10 +205,19 @@ class StepObjective(Objective):
         return (flat[:, :, 0] * (self.model.mass_matrix @ flat)[:, :, 0]).sum(1)
 
     def mass_norm(self, dq: torch.Tensor) -> torch.Tensor:
-        return self._per_island(self._object_mass_norm2(self.layout.to_objects(dq))).clamp(min=0.0).sqrt()
+        return self._mass_norm_objects(self.layout.to_objects(dq))
+
+    def _mass_norm_objects(self, dtm: torch.Tensor) -> torch.Tensor:
+        """|dtm|_M per island of padded changes ``dtm`` (n, 3, K)."""
+        return self._per_island(self._object_mass_norm2(dtm)).clamp(min=0.0).sqrt()
 
     def point_motion(self, dq: torch.Tensor) -> torch.Tensor:
         return self._point_motion_objects(self.layout.to_objects(dq))
+
+    def update_norms(self, dq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`point_motion` and :meth:`mass_norm` of dq from one conversion to the objects' layout."""
+        dtm = self.layout.to_objects(dq)
+        return self._point_motion_objects(dtm), self._mass_norm_objects(dtm)
 
     def _point_motion_objects(self, dtm: torch.Tensor) -> torch.Tensor:
         """Largest contact-sphere displacement (m) per island of padded changes ``dtm`` (n, 3, K)."""

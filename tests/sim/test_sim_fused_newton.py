@@ -158,6 +158,19 @@ def test_kernel_evaluation_follows_the_next_objective_on_the_same_workspace():
     torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
 
 
+def test_step_objective_update_norms_equal_its_two_norms():
+    """``minimise`` asks ``update_norms`` once per iteration; ``StepObjective`` computes both norms from one
+    conversion to the objects' layout: the same values as ``point_motion`` and ``mass_norm`` bit for bit (two
+    islands, mixed handle counts)."""
+    objective, _, q0 = _objective(SCENES[0])
+    gen = torch.Generator().manual_seed(9)
+    for _ in range(3):
+        dq = 1e-2 * torch.randn(q0.shape, generator=gen, dtype=D)
+        motion, mass = objective.update_norms(dq)
+        assert torch.equal(motion, objective.point_motion(dq)) and torch.equal(mass, objective.mass_norm(dq))
+        assert bool((motion > 0).all()) and bool((mass > 0).all())
+
+
 def _captured_solves(max_solves: int = 40, throw: bool = False):
     """Real (sub)step solves of the stack below (one-handle boxes falling, landing on the ground and on each
     other, with pairs and friction): the arguments the solver passed to ``minimise`` (batched path)."""
