@@ -1251,7 +1251,7 @@ class FusedNewton:
             self._keep[key] = value.contiguous()
             setattr(bd, key, _wp(self._keep[key]))
         bd.island_size = int(size)
-        self._bound_launches.clear()  # packed with the previous grouping's arrays
+        self._bound_launches.clear()  # packed for the previous grouping's island count
         scratch, arrays = self._island_scratch_of(n_isl, size)
         for name, tensor in scratch.items():
             setattr(self, name, tensor)
