@@ -37,7 +37,9 @@ import warp as wp
 
 from data_gen.sim.energy.contact_kernels import (
     WarpContact,
+    add_block,
     add_gradient,
+    add_pair_derivatives,
     pair_terms,
     scene_sphere_terms,
     sphere_position,
@@ -359,26 +361,6 @@ def _add_affine_gradient(grad: wp.array(dtype=wp.float64), first: int, bo: wp.ve
 
 
 @wp.func
-def _add_object_block(hess: wp.array(dtype=wp.float64), n_size: int, base: int, b: wp.array3d(dtype=wp.float64),
-                      o: int, s: int, cols_o: int, first_o: int, p: int, t: int, cols_p: int, first_p: int,
-                      h: wp.mat33d):  # fmt: skip
-    """hess[(r, a), (c, e)] += h[r, c] (b_os[a] b_pt[e]) for the rows of object o (sphere s) and the columns of
-    object p (sphere t), both with contiguous unknowns (island-local offsets ``first_o`` / ``first_p``, entry
-    (r, a) at ``first + r cols + a``) of the matrix at ``base``: what ``add_block`` adds, in the same order and
-    with the same products, addressed directly instead of through the index table."""
-    for a in range(cols_o):
-        ba = b[o, s, a]
-        if ba != _ZERO:
-            for e in range(cols_p):
-                w = ba * b[p, t, e]
-                if w != _ZERO:
-                    for r in range(3):
-                        row = base + (first_o + r * cols_o + a) * n_size + first_p + e
-                        for c in range(3):
-                            hess[row + c * cols_p] = hess[row + c * cols_p] + h[r, c] * w
-
-
-@wp.func
 def _add_affine_block(hess: wp.array(dtype=wp.float64), n_size: int, base: int, first_o: int, bo: wp.vec4d,
                       first_p: int, bp: wp.vec4d, h: wp.mat33d):  # fmt: skip
     """hess[(r, a), (c, e)] += h[r, c] bo[a] bp[e] for the rows of one one-handle object and the columns of
@@ -512,8 +494,7 @@ def _evaluate(
                         _add_affine_block(hess, n_size, matrix_base, local, bo, local, bo, h2 * h)
                     else:
                         add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
-                        local = bd.flat_index[o, 0] - start
-                        _add_object_block(hess, n_size, matrix_base, bd.b, o, s, cols, local, o, s, cols, local, h2 * h)
+                        add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, h2 * h)
     # pair contact + friction of the island's candidate pairs (side i on one of its objects) that may touch
     for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
         p = st.live_order[k]
@@ -537,18 +518,9 @@ def _evaluate(
                         _add_affine_block(hess, n_size, matrix_base, fj - start, bj, fj - start, bj, hs)
                         _add_affine_block(hess, n_size, matrix_base, fi - start, bi, fj - start, bj, -hs)
                         _add_affine_block(hess, n_size, matrix_base, fj - start, bj, fi - start, bi, -hs)
-                else:  # deformable objects: contiguous unknowns, addressed directly as add_pair_derivatives adds
-                    gs = h2 * g
-                    hs = h2 * h
-                    li = bd.flat_index[oi, 0] - start
-                    add_gradient(grad, bd.flat_index, bd.b, oi, si, cols_i, kp, gs)
-                    _add_object_block(hess, n_size, matrix_base, bd.b, oi, si, cols_i, li, oi, si, cols_i, li, hs)
-                    if oj >= 0:
-                        lj = bd.flat_index[oj, 0] - start
-                        add_gradient(grad, bd.flat_index, bd.b, oj, sj, cols_j, kp, -gs)
-                        _add_object_block(hess, n_size, matrix_base, bd.b, oj, sj, cols_j, lj, oj, sj, cols_j, lj, hs)
-                        _add_object_block(hess, n_size, matrix_base, bd.b, oi, si, cols_i, li, oj, sj, cols_j, lj, -hs)
-                        _add_object_block(hess, n_size, matrix_base, bd.b, oj, sj, cols_j, lj, oi, si, cols_i, li, -hs)
+                else:
+                    add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
+                                         h2 * g, h2 * h)  # fmt: skip
                 if oj >= 0:  # the cross blocks widen both objects' bands
                     first_i = bd.flat_index[oi, 0] - start
                     first_j = bd.flat_index[oj, 0] - start

@@ -130,10 +130,16 @@ def add_block(
     p: int,
     t: int,
     columns_p: int,
-    padded_columns: int,
     h: wp.mat33d,
 ):
-    """hess[(r, a), (c, e)] += h[r, c] b_os[a] b_pt[e]: the block of object o's rows and object p's columns."""
+    """hess[(r, a), (c, e)] += h[r, c] b_os[a] b_pt[e]: the block of object o's rows and object p's columns.
+
+    An object's unknowns are contiguous in its island (:class:`~data_gen.sim.model.DofLayout`: entry (r, a) at
+    its first unknown plus ``r columns + a``), so only the first one is looked up."""
+    row0 = int(flat_index[o, 0])  # island * N + the object's first local unknown
+    col0 = int(flat_index[p, 0])
+    # row (island * N + local) -> island * N * N + local * N: row * N - island * N
+    shift = (row0 // island_size) * island_size
     for a in range(columns):
         ba = b[o, s, a]
         if ba != _ZERO:
@@ -141,11 +147,9 @@ def add_block(
                 w = ba * b[p, t, e]
                 if w != _ZERO:
                     for r in range(3):
-                        row = int(flat_index[o, r * padded_columns + a])
-                        base = row * island_size - (row // island_size) * island_size  # island * N * N + local row * N - island * N
+                        base = (row0 + r * columns + a) * island_size - shift + col0 + e
                         for c in range(3):
-                            col = int(flat_index[p, c * padded_columns + e])
-                            wp.atomic_add(hess, base + col, h[r, c] * w)
+                            wp.atomic_add(hess, base + c * columns_p, h[r, c] * w)
 
 
 @wp.func
@@ -250,12 +254,12 @@ def add_pair_derivatives(
     """A pair's scaled gradient and Hessian into the island system (side j and cross blocks when j is solved)."""
     kp = flat_index.shape[1] // 3
     add_gradient(grad, flat_index, b, oi, si, cols_i, kp, gs)
-    add_block(hess, flat_index, island_size, b, oi, si, cols_i, oi, si, cols_i, kp, hs)
+    add_block(hess, flat_index, island_size, b, oi, si, cols_i, oi, si, cols_i, hs)
     if oj >= 0:
         add_gradient(grad, flat_index, b, oj, sj, cols_j, kp, -gs)
-        add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oj, sj, cols_j, kp, hs)
-        add_block(hess, flat_index, island_size, b, oi, si, cols_i, oj, sj, cols_j, kp, -hs)
-        add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oi, si, cols_i, kp, -hs)
+        add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oj, sj, cols_j, hs)
+        add_block(hess, flat_index, island_size, b, oi, si, cols_i, oj, sj, cols_j, -hs)
+        add_block(hess, flat_index, island_size, b, oj, sj, cols_j, oi, si, cols_i, -hs)
 
 
 @wp.kernel
@@ -308,7 +312,7 @@ def scene_contact_kernel(
     if derivatives != 0:
         kp = flat_index.shape[1] // 3
         add_gradient(grad, flat_index, b, o, s, cols, kp, scale * g)
-        add_block(hess, flat_index, island_size, b, o, s, cols, o, s, cols, kp, scale * h)
+        add_block(hess, flat_index, island_size, b, o, s, cols, o, s, cols, scale * h)
 
 
 @wp.kernel
