@@ -262,7 +262,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "return torch.ones(n, dtype=torch.bool)",
            tests=("tests/sim/test_sim_fused_newton.py",)),
     Mutant("recorded_substeps_drop_sleeping_partner_forces", "data_gen/sim/solver.py",
-           "                live = live & asleep_j\n",
+           "                live = live & torch.from_numpy(asleep_j)\n",
            "                live = live & False\n",
            tests=("tests/sim/test_sim_solver_overhead.py::test_a_recorded_fused_step_keeps_the_sphere_records_of_one_record_per_substep",)),
     Mutant("broad_phase_apart_test_without_reach", "data_gen/sim/contact.py",

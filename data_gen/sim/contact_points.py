@@ -208,14 +208,20 @@ class ContactPoints:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-cubature-point contact force (m,3) N (sum of its spheres) and dominant partner id (m,)
         (the partner of its sphere with the strongest contact; ``no_partner`` where none)."""
-        force = torch.zeros(self.num_cubature, 3, dtype=DTYPE).index_add_(0, self.cubature_index, force_n)
-        best = torch.zeros(self.num_cubature, dtype=DTYPE).scatter_reduce(
-            0, self.cubature_index, strength_n, reduce="amax", include_self=True
-        )
-        is_best = (strength_n > 0) & (strength_n == best[self.cubature_index])
-        out = torch.full((self.num_cubature,), no_partner, dtype=torch.int64)
-        out[self.cubature_index[is_best]] = partner[is_best]
-        return force, out
+        return spheres_to_points(self.cubature_index, self.num_cubature, force_n, partner, strength_n, no_partner)
+
+
+def spheres_to_points(index: torch.Tensor, num_points: int, force_n: torch.Tensor, partner: torch.Tensor,
+                      strength_n: torch.Tensor, no_partner: int) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Sphere records onto points: sphere s goes to point ``index[s]`` (< ``num_points``). Per point the summed
+    force (num_points, 3) N of its spheres (in sphere order) and the partner of its strongest sphere (strength >
+    0; ``no_partner`` where none)."""
+    force = torch.zeros(num_points, 3, dtype=DTYPE).index_add_(0, index, force_n)
+    best = torch.zeros(num_points, dtype=DTYPE).scatter_reduce(0, index, strength_n, reduce="amax", include_self=True)
+    is_best = (strength_n > 0) & (strength_n == best[index])
+    out = torch.full((num_points,), no_partner, dtype=torch.int64)
+    out[index[is_best]] = partner[is_best]
+    return force, out
 
 
 class CubatureGather:
@@ -243,12 +249,7 @@ class CubatureGather:
         partners and (k,) strengths (N)."""
         if not self.counts:
             return []
-        index = self.index
-        strength = torch.cat(strength_n)
-        force = torch.zeros(self.total, 3, dtype=DTYPE).index_add_(0, index, torch.cat(force_n))
-        best = torch.zeros(self.total, dtype=DTYPE).scatter_reduce(0, index, strength, reduce="amax", include_self=True)
-        is_best = (strength > 0) & (strength == best[index])
-        out = torch.full((self.total,), no_partner, dtype=torch.int64)
-        out[index[is_best]] = torch.cat(partner)[is_best]
+        force, out = spheres_to_points(self.index, self.total, torch.cat(force_n), torch.cat(partner),
+                                       torch.cat(strength_n), no_partner)  # fmt: skip
         return list(zip(force.split(self.counts), out.split(self.counts)))
 

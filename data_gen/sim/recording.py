@@ -290,23 +290,31 @@ class InertiaMoments:
     def frame(self, tm: np.ndarray, tm_dot: np.ndarray) -> RigidFrame:
         """Rigid-body quantities at the state ``tm`` (3, 4H) moving at ``tm_dot`` (3, 4H), both
         ``q.reshape(3, -1)`` of a q-ordered state (m, m/s)."""
-        z = self.second_moment
-        moment = z[:3] + tm @ z[3:]  # A Z = sum_p m_p (x_p - c) z_p^T, (3, 3 + 4H)
-        spread = moment[:, :3] + moment[:, 3:] @ tm.T  # sum_p m_p (x_p - c)(x_p - c)^T
-        cross = moment[:, 3:] @ tm_dot.T  # sum_p m_p (x_p - c)(v_p - v_c)^T
-        angular_momentum = np.array(
-            [cross[1, 2] - cross[2, 1], cross[2, 0] - cross[0, 2], cross[0, 1] - cross[1, 0]]
-        )
-        inertia = np.trace(spread) * np.eye(3) - spread
-        spin = float(((tm_dot @ z[3:, 3:]) * tm_dot).sum())
-        return RigidFrame(
-            com_m=self.com_rest_m + tm @ self.mean_basis,
-            velocity_m_s=tm_dot @ self.mean_basis,
-            cross_covariance_m2=moment[:, :3] / self.mass_kg,
-            inertia_kg_m2=inertia,
-            angular_momentum_kg_m2_s=angular_momentum,
-            spin_j=spin,
-        )
+        return rigid_frames(self.second_moment[None], self.com_rest_m[None], self.mean_basis[None],
+                            np.array([self.mass_kg]), tm[None], tm_dot[None])[0]  # fmt: skip
+
+
+def rigid_frames(second_moment: np.ndarray, com_rest_m: np.ndarray, mean_basis: np.ndarray, mass_kg: np.ndarray,
+                 tm: np.ndarray, tm_dot: np.ndarray) -> list[RigidFrame]:  # fmt: skip
+    """:meth:`InertiaMoments.frame` of m objects of equal handle counts at once: their moments stacked
+    (``second_moment`` (m, 3 + 4H, 3 + 4H), ``com_rest_m`` (m, 3), ``mean_basis`` (m, 4H), ``mass_kg`` (m,)) and
+    states ``tm`` / ``tm_dot`` (m, 3, 4H) (m, m/s)."""
+    z = second_moment
+    moment = z[:, :3] + tm @ z[:, 3:]  # A Z = sum_p m_p (x_p - c) z_p^T, (m, 3, 3 + 4H)
+    spread = moment[:, :, :3] + moment[:, :, 3:] @ tm.transpose(0, 2, 1)  # sum_p m_p (x_p - c)(x_p - c)^T
+    cross = moment[:, :, 3:] @ tm_dot.transpose(0, 2, 1)  # sum_p m_p (x_p - c)(v_p - v_c)^T
+    angular_momentum = np.stack(
+        [cross[:, 1, 2] - cross[:, 2, 1], cross[:, 2, 0] - cross[:, 0, 2], cross[:, 0, 1] - cross[:, 1, 0]], axis=1
+    )
+    trace = spread[:, 0, 0] + spread[:, 1, 1] + spread[:, 2, 2]
+    inertia = trace[:, None, None] * np.eye(3) - spread
+    spin = ((tm_dot @ z[:, 3:, 3:]) * tm_dot).reshape(len(z), -1).sum(1)
+    com = com_rest_m + (tm @ mean_basis[:, :, None])[:, :, 0]
+    velocity = (tm_dot @ mean_basis[:, :, None])[:, :, 0]
+    return [
+        RigidFrame(com[i], velocity[i], moment[i, :, :3] / mass_kg[i], inertia[i], angular_momentum[i], float(spin[i]))
+        for i in range(len(z))
+    ]
 
 
 @dataclass(frozen=True)
@@ -412,10 +420,11 @@ class OneHandleGroup:
             ))  # fmt: skip
         return out
 
-    def frames(self, qs: list[torch.Tensor], qdots: list[torch.Tensor], with_sphere_forces: bool,
+    def frames(self, qs: list[torch.Tensor], qdots: list[torch.Tensor],
                sphere_forces: list[torch.Tensor] | None) -> tuple[dict[str, np.ndarray], list[RigidFrame]]:  # fmt: skip
         """The members' per-frame arrays stacked (m, ...) (keys of :func:`_object_frame`'s record but the
-        per-object constants and copies) and their :class:`RigidFrame`\\s."""
+        per-object constants and copies) and their :class:`RigidFrame`\\s; with ``sphere_forces`` (every
+        object's, (S, 3) N) the stress from the mean stress theorem, else from the uniform F."""
         members = self.members
         q = torch.stack([qs[k] for k in members])  # (m, 12)
         tm = q.reshape(len(members), 3, 4)
@@ -429,30 +438,12 @@ class OneHandleGroup:
         # F = I + Tm C with C = [I; 0]: I + Tm's first three columns (the products with C's zeros add nothing)
         f = np.eye(3) + tm_np[:, :, :3]
         det_f = det3(f)
-        # InertiaMoments.frame, batched
-        z = self.second_moment
-        moment = z[:, :3] + tm_np @ z[:, 3:]  # (m, 3, 7)
-        spread = moment[:, :, :3] + moment[:, :, 3:] @ tm_np.transpose(0, 2, 1)
-        cross = moment[:, :, 3:] @ tmdot.transpose(0, 2, 1)
-        angular_momentum = np.stack(
-            [cross[:, 1, 2] - cross[:, 2, 1], cross[:, 2, 0] - cross[:, 0, 2], cross[:, 0, 1] - cross[:, 1, 0]], axis=1
-        )
-        trace = spread[:, 0, 0] + spread[:, 1, 1] + spread[:, 2, 2]
-        inertia = trace[:, None, None] * np.eye(3) - spread
-        spin = ((tmdot @ z[:, 3:, 3:]) * tmdot).reshape(len(members), -1).sum(1)
-        com = self.com_rest_m + (tm_np @ self.mean_basis[:, :, None])[:, :, 0]
-        velocity = (tmdot @ self.mean_basis[:, :, None])[:, :, 0]
-        rigids = [
-            RigidFrame(com[i], velocity[i], moment[i, :, :3] / self.mass_kg[i], inertia[i], angular_momentum[i],
-                       float(spin[i]))  # fmt: skip
-            for i in range(len(members))
-        ]
-        if with_sphere_forces:  # the mean stress theorem (rigid_mean_hydrostatic_from_spin_pa), per member
-            force = np.stack([sphere_forces[k].numpy() for k in members])  # (m, S, 3)
-            magnitude = np.sqrt((force * force).sum(2))[:, :, None]
-            where = sphere_x - self.contact_radius_m[:, :, None] * force / np.maximum(magnitude, 1e-300)
-            virial = ((where - com[:, None, :]) * force).reshape(len(members), -1).sum(1)
-            mean = (virial + spin) / (3.0 * self.volume_m3)
+        rigids = rigid_frames(self.second_moment, self.com_rest_m, self.mean_basis, self.mass_kg, tm_np, tmdot)
+        if sphere_forces is not None:  # the mean stress theorem, per member
+            mean = rigid_mean_hydrostatic_from_spin_pa(
+                self.volume_m3, np.stack([r.com_m for r in rigids]), np.array([r.spin_j for r in rigids]), sphere_x,
+                self.contact_radius_m, np.stack([sphere_forces[k].numpy() for k in members]),
+            )  # fmt: skip
         else:  # the uniform F's hydrostatic stress
             mean = mat.hydrostatic_stress(torch.from_numpy(f), self.mu_pa, self.lam_pa).numpy()
         num_points = x.shape[1]
@@ -506,7 +497,7 @@ class FrameRecorder:
         frames: list[dict] = [{} for _ in range(n)]
         rigids: list[RigidFrame | None] = [None] * n
         for group in self.groups:  # one-handle objects: batched per group
-            arrays, group_rigids = group.frames(qs, qdots, sphere_forces is not None, sphere_forces)
+            arrays, group_rigids = group.frames(qs, qdots, sphere_forces)
             for i, k in enumerate(group.members):
                 rigid = rigids[k] = group_rigids[i]
                 frames[k] = {
@@ -644,19 +635,21 @@ def rigid_mean_hydrostatic_pa(
 
 
 def rigid_mean_hydrostatic_from_spin_pa(
-    volume_m3: float,
+    volume_m3: float | np.ndarray,
     com_m: np.ndarray,
-    spin: float,
+    spin: float | np.ndarray,
     sphere_x: np.ndarray,
     sphere_r: np.ndarray,
     sphere_f: np.ndarray,
-) -> float:
+) -> float | np.ndarray:
     """:func:`rigid_mean_hydrostatic_pa` on NumPy arrays with the particle sum ``spin`` = sum_p m_p
     |v_p - v_c|^2 (J) given (from :class:`InertiaMoments`, say): volume (m^3), centre of mass (3,) m,
-    sphere centres (k,3) m, radii (k,) m and forces (k,3) N; the result in Pa."""
-    magnitude = np.sqrt((sphere_f * sphere_f).sum(1))[:, None]
-    where = sphere_x - sphere_r[:, None] * sphere_f / np.maximum(magnitude, 1e-300)
-    virial = float(((where - com_m) * sphere_f).sum())
+    sphere centres (k,3) m, radii (k,) m and forces (k,3) N; the result in Pa. Leading batch axes (m, ...) on every
+    argument give one result per object (m,)."""
+    magnitude = np.sqrt((sphere_f * sphere_f).sum(-1))[..., None]
+    where = sphere_x - sphere_r[..., None] * sphere_f / np.maximum(magnitude, 1e-300)
+    product = (where - com_m[..., None, :]) * sphere_f
+    virial = product.reshape(*product.shape[:-2], -1).sum(-1)
     return (virial + spin) / (3.0 * volume_m3)
 
 

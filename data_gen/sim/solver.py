@@ -1033,18 +1033,17 @@ class ImplicitEulerSolver:
         the pair forces of every sub-step, in order, so earlier sub-steps add only their pairs with a sleeping
         side j."""
         last = len(result.forces) - 1
-        asleep_np = self.state.asleep[ps.obj_j] if len(ps.obj_j) else None
-        asleep_j = torch.from_numpy(asleep_np) if asleep_np is not None else None
-        any_asleep_j = asleep_np is not None and bool(asleep_np.any())
+        asleep_j = self.state.asleep[ps.obj_j]  # (P,) bool
+        any_asleep_j = bool(asleep_j.any())
         for j, forces in enumerate(result.forces):
             if j == last:  # the records start from this sub-step's scene forces
                 force = forces.scene_force_n * sphere_valid[:, :, None]
                 self._start_sphere_records(objects, force, force.norm(dim=2))
-            if asleep_j is None or (j < last and not any_asleep_j):  # earlier sub-steps: sleeping partners only
+            if not len(asleep_j) or (j < last and not any_asleep_j):  # earlier sub-steps: sleeping partners only
                 continue
             live = (forces.pair_force_i_n != 0).any(1)
             if j < last:
-                live = live & asleep_j
+                live = live & torch.from_numpy(asleep_j)
             rows = torch.nonzero(live)[:, 0]
             if len(rows):
                 r = rows.numpy()
