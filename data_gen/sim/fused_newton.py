@@ -1191,7 +1191,7 @@ class FusedNewton:
         self._bound_step: StepData | None = None
         # evaluate_bound's launches, packed once per mode (0 / CONTACT_MATRIX_ONLY) and replayed: warp packs a
         # struct argument by reference (a new objective's step data, written into the same StepData, is what the
-        # replay reads); the launch dimension and the output arrays are fixed until a regrouping changes them
+        # replay reads); re-packed when a regrouping changes the island count (the launch size and the outputs)
         self._bound_launches: dict[int, wp.Launch] = {}
         self._value = torch.zeros(layout.num_islands, dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self._flagged = torch.zeros(layout.num_islands, dtype=torch.int32, device=model.mass_kg.device)
@@ -1223,7 +1223,6 @@ class FusedNewton:
             self._keep[key] = value.contiguous()
             setattr(bd, key, _wp(self._keep[key]))
         bd.island_size = int(size)
-        self._bound_launches.clear()  # packed for the previous grouping's island count
         scratch, arrays = self._island_scratch_of(n_isl, size)
         for name, tensor in scratch.items():
             setattr(self, name, tensor)
@@ -1364,7 +1363,7 @@ class FusedNewton:
         if self._value.shape[0] != n_isl:  # regrouped (relayout) since the outputs were made
             self._value, self._flagged = self._value.new_zeros(n_isl), self._flagged.new_zeros(n_isl)
             self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
-            self._bound_launches.clear()
+            self._bound_launches.clear()  # packed with the old island count and outputs
         if self._bound_objective is not objective:
             self._bound_step = self._step_data(objective)
             self._bound_objective = objective
