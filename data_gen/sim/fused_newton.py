@@ -52,7 +52,7 @@ from data_gen.sim.energy.elastic_kernel import (
     projected_neo_hookean_hessian,
 )
 from data_gen.sim.model import DofLayout, Model
-from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
+from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings, cholesky_direction
 from data_gen.sim.static_scene import _FAR_M, boxes_distance, points_distance
 
 if TYPE_CHECKING:
@@ -74,6 +74,8 @@ _SCRATCH_SHAPES = 8
 CONTACT_MATRIX_ONLY = wp.constant(2)
 # STATUS values
 SOLVED, NEEDS_FALLBACK = 0, 1
+# STATUS of an island still iterating in FusedNewton.solve_split
+RUNNING = 2
 
 
 @wp.struct
@@ -662,13 +664,82 @@ def _update_norms(bd: Bodies, dq: wp.array(dtype=wp.float64), isl: int):
     return wp.sqrt(wp.max(mass2, _ZERO)), motion
 
 
+# outcomes of :func:`_take_update`
+STOPPED, HAVE_DERIVATIVES, NEED_DERIVATIVES = 0, 1, 2
+
+
+@wp.func
+def _take_update(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp.float64, trust: wp.float64,
+                 line_search_steps: int, derivatives: int, value: wp.float64):  # fmt: skip
+    """The rest of one Newton iteration of island ``isl`` once its update ``wk.dq`` is known (``wk.grad`` the
+    gradient and ``value`` the objective at ``wk.q``): the trust limit on sphere motion, the converged shortcut,
+    the Armijo search (trials evaluated with ``derivatives``, the first one with them) and the convergence test.
+    ``wk.q`` ends at the accepted point. Returns (outcome, value): :data:`STOPPED` (converged or the search
+    failed: ``wk.stats`` says which), :data:`HAVE_DERIVATIVES` (the accepted first trial left its gradient and
+    matrix in ``wk.grad`` / ``wk.hess``, ``value`` its objective) or :data:`NEED_DERIVATIVES`."""
+    q, trial_q, tm, grad, hess, dq = wk.q, wk.trial_q, wk.tm, wk.grad, wk.hess, wk.dq
+    band, stats = wk.band, wk.stats
+    n_size = bd.island_size
+    start = isl * n_size
+    mass, motion = _update_norms(bd, dq, isl)
+    alpha = wp.min(trust / wp.max(motion, wp.float64(1e-300)), _ONE)
+    if alpha < _ONE:
+        stats[isl, TRUST_LIMITED] += 1
+    if alpha >= _ONE and mass <= thr:  # already below the tolerance: taken whole, converged
+        for r in range(n_size):
+            q[start + r] = q[start + r] + dq[start + r]
+        stats[isl, CONVERGED] = 1
+        return STOPPED, value
+    slope = _ZERO
+    for r in range(n_size):
+        slope = slope + grad[start + r] * dq[start + r]
+    accepted = int(0)
+    have = int(0)
+    for t in range(line_search_steps + EXTRA_HALVINGS):
+        for r in range(n_size):
+            trial_q[start + r] = q[start + r] + alpha * dq[start + r]
+        _load_state(bd, trial_q, tm, isl)
+        with_derivatives = int(0)
+        if t == 0:
+            with_derivatives = derivatives  # with derivatives: when taken, the next iteration starts from them
+            stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
+        else:
+            stats[isl, EVALUATIONS] += 1
+        trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band)
+        ok = int(0)
+        if t < line_search_steps:
+            if trial <= value + wp.float64(ARMIJO_C) * alpha * slope + wp.float64(1e-14) * wp.abs(value):
+                ok = int(1)
+        elif trial < value:
+            ok = int(1)
+            stats[isl, LINE_SEARCH_EXTENDED] += 1
+        if ok != 0:
+            accepted = int(1)
+            if with_derivatives != 0:
+                have = int(1)
+                value = trial
+            break
+        alpha = wp.float64(0.5) * alpha
+    if accepted == 0:  # no decrease along dq: the island stops where it is, unconverged
+        stats[isl, LINE_SEARCH_FAILURES] += 1
+        return STOPPED, value
+    for r in range(n_size):
+        q[start + r] = trial_q[start + r]
+    if alpha * mass <= thr:
+        stats[isl, CONVERGED] = 1
+        return STOPPED, value
+    if have != 0:
+        return HAVE_DERIVATIVES, value
+    return NEED_DERIVATIVES, value
+
+
 @wp.func
 def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp.float64, trust: wp.float64,
             iterations: int, line_search_steps: int):  # fmt: skip
     """Newton's method on island ``isl`` from ``wk.q`` (its part of the flat island vectors, overwritten with the
     result), convergence threshold ``thr`` (|dq|_M) and trust radius ``trust`` (m); ``wk.stats[isl]`` receives
     the status and counters. The step's start data (``st``) must be set and the scene margins computed."""
-    q, trial_q, tm, grad, hess, chol, dq = wk.q, wk.trial_q, wk.tm, wk.grad, wk.hess, wk.chol, wk.dq
+    q, tm, grad, hess, chol, dq = wk.q, wk.tm, wk.grad, wk.hess, wk.chol, wk.dq
     first, band, stats = wk.first, wk.band, wk.stats
     n_size = bd.island_size
     start = isl * n_size
@@ -681,7 +752,6 @@ def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp
             _load_state(bd, q, tm, isl)
             value, flagged = _evaluate(bd, sc, st, tm, isl, 1, grad, hess, band)
             stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
-        have = int(0)
         finite = int(1)
         biggest = _ZERO
         for r in range(n_size):
@@ -698,52 +768,12 @@ def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp
                 return
         _newton_direction(chol, first, grad, dq, isl, n_size)
         stats[isl, ITERATIONS] += 1
-        mass, motion = _update_norms(bd, dq, isl)
-        alpha = wp.min(trust / wp.max(motion, wp.float64(1e-300)), _ONE)
-        if alpha < _ONE:
-            stats[isl, TRUST_LIMITED] += 1
-        if alpha >= _ONE and mass <= thr:  # already below the tolerance: taken whole, converged
-            for r in range(n_size):
-                q[start + r] = q[start + r] + dq[start + r]
-            stats[isl, CONVERGED] = 1
+        outcome, value = _take_update(bd, sc, st, wk, isl, thr, trust, line_search_steps, 1, value)
+        if outcome == STOPPED:
             return
-        slope = _ZERO
-        for r in range(n_size):
-            slope = slope + grad[start + r] * dq[start + r]
-        accepted = int(0)
-        for t in range(line_search_steps + EXTRA_HALVINGS):
-            for r in range(n_size):
-                trial_q[start + r] = q[start + r] + alpha * dq[start + r]
-            _load_state(bd, trial_q, tm, isl)
-            with_derivatives = int(0)
-            if t == 0:
-                with_derivatives = int(1)  # with derivatives: when taken, the next iteration starts from them
-                stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
-            else:
-                stats[isl, EVALUATIONS] += 1
-            trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band)
-            ok = int(0)
-            if t < line_search_steps:
-                if trial <= value + wp.float64(ARMIJO_C) * alpha * slope + wp.float64(1e-14) * wp.abs(value):
-                    ok = int(1)
-            elif trial < value:
-                ok = int(1)
-                stats[isl, LINE_SEARCH_EXTENDED] += 1
-            if ok != 0:
-                accepted = int(1)
-                if with_derivatives != 0:
-                    have = int(1)
-                    value = trial
-                break
-            alpha = wp.float64(0.5) * alpha
-        if accepted == 0:  # no decrease along dq: the island stops where it is, unconverged
-            stats[isl, LINE_SEARCH_FAILURES] += 1
-            return
-        for r in range(n_size):
-            q[start + r] = trial_q[start + r]
-        if alpha * mass <= thr:
-            stats[isl, CONVERGED] = 1
-            return
+        have = int(0)
+        if outcome == HAVE_DERIVATIVES:
+            have = int(1)
 
 
 @wp.kernel
@@ -789,6 +819,54 @@ def evaluate_islands_kernel(
     v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band)
     value[isl] = v
     flagged[isl] = f
+
+
+@wp.kernel
+def scene_margins_kernel(bd: Bodies, sc: SceneArgs, st: StepData):
+    """Island ``isl``'s scene margins (:func:`_scene_margins`) of the bound step."""
+    _scene_margins(bd, sc, st, wp.tid())
+
+
+@wp.kernel
+def update_islands_kernel(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    wk: Work,
+    threshold: wp.array(dtype=wp.float64),
+    trust_m: wp.array(dtype=wp.float64),
+    line_search_steps: int,
+    value: wp.array(dtype=wp.float64),
+):
+    """One Newton iteration of every :data:`RUNNING` island whose update ``wk.dq`` the host has solved for
+    (:meth:`FusedNewton.solve_split`): :func:`_take_update` with trials evaluated with the contact part of the
+    matrix (:data:`CONTACT_MATRIX_ONLY`), then, where the accepted point's derivatives are missing, an evaluation
+    there; ``value[isl]`` becomes the objective at the new ``wk.q``. An island that stops is marked
+    :data:`SOLVED`; a non-finite objective or gradient marks it :data:`NEEDS_FALLBACK`. The scene margins must
+    be computed (:func:`scene_margins_kernel`)."""
+    isl = wp.tid()
+    if wk.stats[isl, STATUS] != RUNNING:
+        return
+    wk.stats[isl, ITERATIONS] += 1
+    outcome, v = _take_update(bd, sc, st, wk, isl, threshold[isl], trust_m[isl], line_search_steps,
+                              CONTACT_MATRIX_ONLY, value[isl])  # fmt: skip
+    if outcome == STOPPED:
+        wk.stats[isl, STATUS] = SOLVED
+        return
+    if outcome == NEED_DERIVATIVES:
+        _load_state(bd, wk.q, wk.tm, isl)
+        v, flagged = _evaluate(bd, sc, st, wk.tm, isl, CONTACT_MATRIX_ONLY, wk.grad, wk.hess, wk.band)
+        wk.stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
+    value[isl] = v
+    finite = int(1)
+    if not wp.isfinite(v):
+        finite = int(0)
+    start = isl * bd.island_size
+    for r in range(bd.island_size):
+        if not wp.isfinite(wk.grad[start + r]):
+            finite = int(0)
+    if finite == 0:
+        wk.stats[isl, STATUS] = NEEDS_FALLBACK
 
 
 @wp.struct
@@ -1189,10 +1267,11 @@ class FusedNewton:
         self._substeps: Substeps | None = None
         self._bound_objective: StepObjective | None = None  # evaluate_bound: the objective whose step is bound
         self._bound_step: StepData | None = None
-        # evaluate_bound's launches, packed once per mode (0 / CONTACT_MATRIX_ONLY) and replayed: warp packs a
-        # struct argument by reference (a new objective's step data, written into the same StepData, is what the
-        # replay reads); re-packed when a regrouping changes the island count (the launch size and the outputs)
-        self._bound_launches: dict[int, wp.Launch] = {}
+        # evaluate_bound's launches, packed once per mode (0 / CONTACT_MATRIX_ONLY), and solve_split's, once per
+        # line search length, and replayed: warp packs a struct argument by reference (a new objective's step data,
+        # written into the same StepData, is what the replay reads), an array by value; re-packed after a
+        # regrouping (relayout: other island-sized arrays, and the launch size and outputs where the count changes)
+        self._bound_launches: dict[int | tuple[str, int], wp.Launch] = {}
         self._value = torch.zeros(layout.num_islands, dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self._flagged = torch.zeros(layout.num_islands, dtype=torch.int32, device=model.mass_kg.device)
         self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
@@ -1234,6 +1313,7 @@ class FusedNewton:
         )
         wk.first, wk.stats = arrays["first"], arrays["stats"]
         self._limits = [arrays["threshold"], arrays["trust"]]
+        self._bound_launches.clear()  # solve_split's launch holds the limits' arrays (packed by value)
         st = self._step
         st.live_count, st.h2 = arrays["live_count"], arrays["h2"]
         if self._pair_capacity >= 0:  # pair buffers already bound: their island order and starts anew
@@ -1352,6 +1432,15 @@ class FusedNewton:
             return value, None, None, flagged.bool()
         return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size).clone(), flagged.bool()
 
+    def _island_outputs(self) -> None:
+        """Per-island value and flag outputs of the island count now (remade after a regrouping changed it,
+        and with them the launches packed on the old ones)."""
+        n_isl = self.shape[0]
+        if self._value.shape[0] != n_isl:
+            self._value, self._flagged = self._value.new_zeros(n_isl), self._flagged.new_zeros(n_isl)
+            self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
+            self._bound_launches.clear()
+
     def evaluate_bound(self, objective: StepObjective, q: torch.Tensor,
                        derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:  # fmt: skip
         """``objective`` per island (n_isl,) at ``q`` (n_isl, N) in one launch; with ``derivatives`` the gradient
@@ -1360,10 +1449,7 @@ class FusedNewton:
         adds to its kept ``M + h^2 K``. The step's data are bound once per objective (its contact buffers are
         this workspace's, prepared by its constructor)."""
         n_isl, size = self.shape
-        if self._value.shape[0] != n_isl:  # regrouped (relayout) since the outputs were made
-            self._value, self._flagged = self._value.new_zeros(n_isl), self._flagged.new_zeros(n_isl)
-            self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
-            self._bound_launches.clear()  # packed with the old island count and outputs
+        self._island_outputs()
         if self._bound_objective is not objective:
             self._bound_step = self._step_data(objective)
             self._bound_objective = objective
@@ -1416,6 +1502,81 @@ class FusedNewton:
             "unconverged_solves": n_isl - totals[CONVERGED],
         }
         return NewtonResult(self.q.view(n_isl, size).clone(), out[:, ITERATIONS], out[:, CONVERGED].bool(), counters)
+
+    def solve_split(self, objective: StepObjective, q0: torch.Tensor, scale: torch.Tensor | None,
+                    trust_m: torch.Tensor | None, settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
+        """``minimise(objective, q0, ...)`` for islands of deformable objects with a kept elastic matrix
+        (``lagged_elastic_hessian``), the work split at the factorisation: the first evaluation is
+        ``objective``'s own (it forms and keeps ``M + h^2 K``); per iteration the host factorises the kept matrix
+        plus the kernel's contact part (LAPACK, :func:`cholesky_direction`, as ``minimise`` does) and one launch
+        (:func:`update_islands_kernel`) does the rest: update norms, trust limit, Armijo search, convergence and
+        the next point's derivatives. One thread's factorisation of a 240-unknown island costs 25x LAPACK's,
+        so the fused :meth:`solve` does not suit these islands; ``minimise``'s per-iteration tensor operations
+        are what this saves. The same decisions as ``minimise`` on the same values (its norms and slope summed
+        in another order). ``scale`` and ``trust_m`` (n_isl,) as in ``minimise``, or None: ``objective``'s
+        ``motion_scale()`` and ``trust_radius()``. None when ``objective`` keeps no matrix or an island needs what
+        only ``minimise`` does (a matrix indefinite after the ridge, a non-finite value): the caller runs
+        ``minimise`` (whose first evaluation is then the kernel's, the matrix being kept)."""
+        n_isl, size = self.shape
+        ev = objective.evaluate(q0, True)
+        base = objective.kept_matrix
+        if base is None or not bool(torch.isfinite(ev.grad).all() & torch.isfinite(ev.value).all()):
+            return None
+        st = self._step_data(objective)
+        self._bound_objective, self._bound_step = objective, st  # evaluate_bound reads the same step data
+        self.q.copy_(q0.reshape(-1))
+        self.grad.copy_(ev.grad.reshape(-1))
+        self._island_outputs()
+        self._value.copy_(ev.value)
+        self.threshold.copy_(settings.tolerance * (objective.motion_scale() if scale is None else scale))
+        self.trust.copy_(objective.trust_radius() if trust_m is None else trust_m)
+        self.stats.zero_()
+        self.stats[:, STATUS] = RUNNING
+        wp.launch(scene_margins_kernel, dim=n_isl, device=self.device, inputs=[self.bodies, self.scene, st])
+        key = ("update", int(settings.line_search_steps))
+        launch = self._bound_launches.get(key)
+        if launch is None:
+            launch = self._bound_launches[key] = wp.launch(
+                update_islands_kernel, dim=n_isl, device=self.device, record_cmd=True, inputs=[
+                    self.bodies, self.scene, st, self.work, *self._limits, int(settings.line_search_steps),
+                    self._value_wp,
+                ],
+            )  # fmt: skip
+        grad = self.grad.view(n_isl, size)
+        status = self.stats[:, STATUS]
+        hess, running = ev.hess, None
+        for _ in range(settings.iterations):
+            dq, ok = cholesky_direction(hess, grad)
+            if ok is not None and not bool((ok if running is None else ok | ~running).all()):
+                return None  # minimise projects every elastic block of such an island
+            self.dq.copy_(dq.reshape(-1))
+            launch.launch()
+            if n_isl == 1:
+                code = int(status[0])
+                if code == NEEDS_FALLBACK:
+                    return None
+                if code != RUNNING:
+                    break
+            else:
+                if bool((status == NEEDS_FALLBACK).any()):
+                    return None
+                running = status == RUNNING
+                if not bool(running.any()):
+                    break
+            hess = torch.add(base, self.hess.view(n_isl, size, size))
+        out = self.stats.to(torch.int64)
+        totals = out.sum(0).tolist()
+        converged = out[:, CONVERGED].bool()
+        counters = {
+            "evaluations": totals[EVALUATIONS],
+            "evaluations_with_derivatives": 1 + totals[EVALUATIONS_WITH_DERIVATIVES],
+            "strict_projections": 0,
+            "line_search_failures": totals[LINE_SEARCH_FAILURES],
+            "line_search_extended": totals[LINE_SEARCH_EXTENDED],
+            "trust_limited_steps": totals[TRUST_LIMITED],
+            "unconverged_solves": n_isl - int(converged.sum()),
+        }
+        return NewtonResult(self.q.view(n_isl, size).clone(), out[:, ITERATIONS], converged, counters)
 
     def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],
                        num_sub: int | Sequence[int], gravity_m_s2: torch.Tensor, settings: NewtonSettings,

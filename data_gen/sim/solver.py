@@ -23,8 +23,10 @@ Counters (``ImplicitEulerSolver.counters``, reported in ``SimulationRunSummary.c
 ``unconverged_solves`` (stopped at ``newton_iterations`` above tolerance), ``line_search_failures``,
 ``line_search_extended``, ``trust_limited_steps``, ``strict_projections`` (indefinite Newton matrix:
 every elastic block projected), ``substep_cap_raised``, energy evaluations, ``fused_island_solves`` (island
-solves done by :class:`~data_gen.sim.fused_newton.FusedNewton`) and ``fused_handed_back`` (group solves it
-handed back to :func:`minimise`).
+solves done by :class:`~data_gen.sim.fused_newton.FusedNewton`), ``fused_handed_back`` (group solves it
+handed back to :func:`minimise`), ``split_island_solves`` (deformable island solves done by
+:meth:`~data_gen.sim.fused_newton.FusedNewton.solve_split`) and ``split_handed_back`` (group solves it handed
+back).
 
 Sleeping: an awake object whose fastest cubature point moves slower than ``sleep_speed_m_s`` while it is
 supported (in contact) for ``sleep_steps`` consecutive steps is frozen (no Newton work, its contact
@@ -372,6 +374,8 @@ class ImplicitEulerSolver:
                 "unconverged_solves",
                 "fused_island_solves",
                 "fused_handed_back",
+                "split_island_solves",
+                "split_handed_back",
             ),
             0,
         )
@@ -833,6 +837,13 @@ class ImplicitEulerSolver:
                 self.counters["fused_handed_back"] += 1
             else:
                 self.counters["fused_island_solves"] += len(islands)
+        # islands of deformable objects with a kept elastic matrix: the kernel iterates, the host factorises
+        split = objective.evaluator if fused is None and self.preset.lagged_elastic_hessian else None
+        if split is not None:
+            result = split.solve_split(objective, q0, None, None, settings)
+            self.counters["split_handed_back" if result is None else "split_island_solves"] += (
+                1 if result is None else len(islands)
+            )
         if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
             result = minimise(objective, q0, objective.motion_scale(), objective.trust_radius(), settings,
                               on_gradient=check_gradient, on_indefinite=indefinite)  # fmt: skip

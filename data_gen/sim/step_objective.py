@@ -238,6 +238,13 @@ class StepObjective(Objective):
         predicted = self._point_motion_objects(self.tm_pred - self.tm_n)
         return 2.0 * predicted + self.h2 * float(self.gravity.norm()) + self.min_median_radius_m
 
+    @property
+    def kept_matrix(self) -> torch.Tensor | None:
+        """``M + h^2 K`` per island (n_isl, N, N) with every object's kept elastic blocks (what a kernel
+        evaluation's contact part is added to), or None until an evaluation with derivatives has kept them (only
+        with ``lagged_elastic_hessian``, ``kernel_evaluation`` and deformable objects); read only."""
+        return self._kept_base
+
     # -- evaluation
     def evaluate(self, q: torch.Tensor, derivatives: bool, strict_islands: torch.Tensor | None = None) -> Evaluation:
         """The objective per island at ``q`` (n_isl, N); with ``derivatives`` its gradient and Newton matrix (the

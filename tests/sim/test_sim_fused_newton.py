@@ -384,8 +384,8 @@ def test_fused_launch_leaves_the_sphere_caches_the_per_object_methods_compute(mo
 
 def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, monkeypatch):
     """A two-handle soft box falling beside the three-box stack: the stack's islands are solved by the
-    fused kernel, the soft box's by ``minimise`` (the solver splits a sub-step's islands by kind), and the
-    trajectories equal those of the batched path for every object."""
+    fused kernel, the soft box's by ``solve_split`` (the solver splits a sub-step's islands by kind; draft keeps
+    the elastic matrix), and the trajectories equal those of the batched path (``minimise``) for every object."""
     from data_gen.sim.material import Material
     from data_gen.sim.world import SimObjectSpec, Simulator
     from tests.sim.test_sim_collision import TINY_TRAINING
@@ -394,9 +394,14 @@ def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, 
     import data_gen.sim.fused_newton as fused_module
     import data_gen.sim.solver as solver_module
 
-    calls = {"fused": 0, "minimise": 0}
+    calls = {"fused": 0, "split": 0, "minimise": 0}
     fused_solve, batched = fused_module.FusedNewton.solve, solver_module.minimise
-    fused_substeps = fused_module.FusedNewton.solve_substeps
+    fused_substeps, split = fused_module.FusedNewton.solve_substeps, fused_module.FusedNewton.solve_split
+
+    def count_split(self, objective, *args, **kwargs):
+        calls["split"] += 1
+        assert bool((objective.model.num_handles > 1).all())
+        return split(self, objective, *args, **kwargs)
 
     def count_fused(self, *args, **kwargs):
         calls["fused"] += 1
@@ -413,6 +418,7 @@ def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, 
 
     monkeypatch.setattr(fused_module.FusedNewton, "solve", count_fused)
     monkeypatch.setattr(fused_module.FusedNewton, "solve_substeps", count_fused_substeps)
+    monkeypatch.setattr(fused_module.FusedNewton, "solve_split", count_split)
     monkeypatch.setattr(solver_module, "minimise", count_minimise)
     half = (0.07, 0.07, 0.05)
 
@@ -428,7 +434,7 @@ def test_one_handle_islands_take_the_fused_path_next_to_a_soft_object(tmp_path, 
         return np.stack([t.com_m for t in sim.run(12, fps=25.0).objects])
 
     with_kernel = run(True)
-    assert calls["fused"] > 0 and calls["minimise"] > 0
+    assert calls["fused"] > 0 and calls["split"] > 0 and calls["minimise"] == 0
     monkeypatch.setattr(fused_module.FusedNewton, "solve", fused_solve)
     monkeypatch.setattr(fused_module.FusedNewton, "solve_substeps", fused_substeps)
     monkeypatch.setattr(solver_module, "minimise", batched)
@@ -605,3 +611,106 @@ def test_regrouped_workspace_solves_as_a_new_one():
         assert float(expected.scene_force_n.abs().max()) > 0.0  # the boxes touch the ground
         checked += 1
     assert checked >= 3
+
+
+def _captured_soft_solves(tmp_path, max_solves: int = 30):
+    """Real (sub)step solves of three soft two-handle boxes (E = 1e5 Pa, draft: the kept elastic matrix) dropped
+    into a staggered column, batched path: per solve an objective of its own with the kernel evaluation and
+    the kept matrix (what ``solve_split`` serves), and the start, scale, trust radius and settings the solver
+    passed to ``minimise``."""
+    from data_gen.sim.material import Material
+    from data_gen.sim.world import SimObjectSpec, Simulator
+    from tests.sim.test_sim_collision import TINY_TRAINING
+    from tests.sim.test_sim_column import grid_box
+
+    import data_gen.sim.solver as solver_module
+
+    captured = []
+    original = solver_module.minimise
+
+    def capture(objective, q0, scale, trust, settings, **kwargs):
+        if len(captured) < max_solves:
+            o = objective
+            captured.append((
+                lambda o=o: StepObjective(o.model, o.layout, o.scene, o.gravity, o.tm_n, (o.tm_pred - o.tm_n) / o.h,
+                                          o.h, STIFFNESS_FACTOR, o.smoothing_m, o.pairs, lagged_elastic_hessian=True,
+                                          kernel_evaluation=True),
+                q0.clone(), scale.clone(), trust.clone(), settings,
+            ))  # fmt: skip
+        return original(objective, q0, scale, trust, settings, **kwargs)
+
+    half = (0.07, 0.07, 0.05)
+    specs = [
+        SimObjectSpec(f"soft_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e5, 0.3, 1000.0),
+                      position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=2,
+                      skinning_settings=TINY_TRAINING)
+        for k in range(3)
+    ]  # fmt: skip
+    solver_module.minimise = capture
+    try:
+        sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), "draft", seed=0, fused_newton=False,
+                        skinning_cache_dir=str(tmp_path))  # fmt: skip
+        sim.run(10, fps=25.0)
+    finally:
+        solver_module.minimise = original
+    return captured
+
+
+def test_split_solve_matches_minimise_on_real_soft_steps(tmp_path):
+    """``FusedNewton.solve_split`` (the host factorises, one launch per iteration does the rest) against
+    ``minimise`` on the same real soft solves (falling, landing on the ground and on each other: pairs, friction,
+    one island or several), every third with a tiny trust radius so that updates are cut by it: the same
+    iterations, convergence and trust-limited updates, the same state to round-off (only the update norms and
+    the slope are summed in another order), and nothing handed back. (Several islands in one solve: the test
+    below.)"""
+    solves = _captured_soft_solves(tmp_path)
+    assert len(solves) >= 10
+    trust_limited = with_pairs = 0
+    for (make, q0, scale, trust, settings), trust_factor in zip(solves, itertools.cycle([1.0, 1.0, 0.005])):
+        trust = trust_factor * trust
+        reference, split = make(), make()
+        assert split.evaluator is not None
+        ref = minimise(reference, q0, scale, trust, settings)
+        out = split.evaluator.solve_split(split, q0, scale, trust, settings)
+        assert out is not None, "the split solve handed a recorded step back"
+        assert torch.equal(out.iterations, ref.iterations) and torch.equal(out.converged, ref.converged)
+        assert out.counters["trust_limited_steps"] == ref.counters["trust_limited_steps"]
+        gap = reference.mass_norm(out.q - ref.q)
+        assert bool((gap <= 1e-6 * settings.tolerance * scale).all()), (gap / (settings.tolerance * scale)).tolist()
+        trust_limited += out.counters["trust_limited_steps"]
+        with_pairs += int(split.pairs.num_pairs > 0)
+    assert trust_limited > 0 and with_pairs > 0, (trust_limited, with_pairs)
+
+
+def test_split_solve_of_deformable_islands_hands_back_what_only_minimise_does():
+    """Two islands of deformable objects (3, 2 and 4 handles; pairs in an island and against a frozen partner),
+    one of them still above the tolerance at the iteration cap: ``solve_split`` ends where ``minimise`` does (the
+    same iterations and convergence, the state to round-off); without the kept
+    matrix (no lagged elastic Hessian) or from a non-finite start it hands the solve back (None)."""
+    model, layout, distance, _, _, pairs, tm = _setup(SCENES[0], 3, (3, 2, 4))
+    gen = torch.Generator().manual_seed(5)
+    tmdot = torch.zeros_like(tm)
+    for o in range(model.num_objects):
+        cols = 4 * int(model.num_handles[o])
+        tmdot[o, :, :cols] = 0.3 * torch.randn(3, cols, generator=gen, dtype=D) / cols
+
+    def objective(lagged: bool = True) -> StepObjective:
+        return StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs,
+                             lagged_elastic_hessian=lagged, kernel_evaluation=True)  # fmt: skip
+
+    settings = NewtonSettings(30, 1e-3, 8)
+    q0 = layout.to_islands(tm + H_S * tmdot)
+    reference, split = objective(), objective()
+    assert layout.num_islands == 2
+    ref = minimise(reference, q0, reference.motion_scale(), reference.trust_radius(), settings)
+    out = split.evaluator.solve_split(split, q0, None, None, settings)
+    assert int(ref.iterations.min()) >= 2 and not bool(ref.converged.all())  # one island stops at the cap
+    assert torch.equal(out.iterations, ref.iterations) and torch.equal(out.converged, ref.converged)
+    gap = reference.mass_norm(out.q - ref.q)  # (30 trust-limited updates: alpha's round-off adds up)
+    assert bool((gap <= 1e-4 * settings.tolerance * reference.motion_scale()).all())
+    unlagged = objective(lagged=False)
+    assert unlagged.evaluator.solve_split(unlagged, q0, None, None, settings) is None
+    bad = q0.clone()
+    bad[0, 0] = float("nan")
+    again = objective()
+    assert again.evaluator.solve_split(again, bad, None, None, settings) is None
