@@ -822,9 +822,24 @@ def evaluate_islands_kernel(
 
 
 @wp.kernel
-def scene_margins_kernel(bd: Bodies, sc: SceneArgs, st: StepData):
-    """Island ``isl``'s scene margins (:func:`_scene_margins`) of the bound step."""
-    _scene_margins(bd, sc, st, wp.tid())
+def split_start_kernel(
+    bd: Bodies,
+    sc: SceneArgs,
+    st: StepData,
+    threshold: wp.array(dtype=wp.float64),
+    trust_m: wp.array(dtype=wp.float64),
+    limits_given: int,
+    tolerance: wp.float64,
+    gravity_norm: wp.float64,
+):
+    """Island ``isl``'s scene margins (:func:`_scene_margins`) of the bound step and, unless ``limits_given``,
+    its convergence threshold and trust radius (:func:`_step_limits`) into ``threshold`` / ``trust_m``."""
+    isl = wp.tid()
+    if limits_given == 0:
+        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
+        threshold[isl] = thr_isl
+        trust_m[isl] = trust_isl
+    _scene_margins(bd, sc, st, isl)
 
 
 @wp.kernel
@@ -843,7 +858,7 @@ def update_islands_kernel(
     matrix (:data:`CONTACT_MATRIX_ONLY`), then, where the accepted point's derivatives are missing, an evaluation
     there; ``value[isl]`` becomes the objective at the new ``wk.q``. An island that stops is marked
     :data:`SOLVED`; a non-finite objective or gradient marks it :data:`NEEDS_FALLBACK`. The scene margins must
-    be computed (:func:`scene_margins_kernel`)."""
+    be computed (:func:`split_start_kernel`)."""
     isl = wp.tid()
     if wk.stats[isl, STATUS] != RUNNING:
         return
@@ -1513,8 +1528,9 @@ class FusedNewton:
         the next point's derivatives. One thread's factorisation of a 240-unknown island costs 25x LAPACK's,
         so the fused :meth:`solve` does not suit these islands; ``minimise``'s per-iteration tensor operations
         are what this saves. The same decisions as ``minimise`` on the same values (its norms and slope summed
-        in another order). ``scale`` and ``trust_m`` (n_isl,) as in ``minimise``, or None: ``objective``'s
-        ``motion_scale()`` and ``trust_radius()``. None when ``objective`` keeps no matrix or an island needs what
+        in another order). ``scale`` and ``trust_m`` (n_isl,) as in ``minimise``, or both None: the kernel
+        computes them as ``objective.motion_scale()`` and ``objective.trust_radius()`` do (:func:`_step_limits`;
+        then in ``self.threshold``, ``tolerance * scale``, and ``self.trust``). None when ``objective`` keeps no matrix or an island needs what
         only ``minimise`` does (a matrix indefinite after the ridge, a non-finite value): the caller runs
         ``minimise`` (whose first evaluation is then the kernel's, the matrix being kept)."""
         n_isl, size = self.shape
@@ -1528,11 +1544,18 @@ class FusedNewton:
         self.grad.copy_(ev.grad.reshape(-1))
         self._island_outputs()
         self._value.copy_(ev.value)
-        self.threshold.copy_(settings.tolerance * (objective.motion_scale() if scale is None else scale))
-        self.trust.copy_(objective.trust_radius() if trust_m is None else trust_m)
+        given = scale is not None
+        if given != (trust_m is not None):
+            raise ValueError("FusedNewton.solve_split: give both scale and trust_m, or neither")
+        if given:
+            self.threshold.copy_(settings.tolerance * scale)
+            self.trust.copy_(trust_m)
         self.stats.zero_()
         self.stats[:, STATUS] = RUNNING
-        wp.launch(scene_margins_kernel, dim=n_isl, device=self.device, inputs=[self.bodies, self.scene, st])
+        wp.launch(split_start_kernel, dim=n_isl, device=self.device, inputs=[
+            self.bodies, self.scene, st, *self._limits, int(given), wp.float64(settings.tolerance),
+            wp.float64(self._gravity_norm),
+        ])  # fmt: skip
         key = ("update", int(settings.line_search_steps))
         launch = self._bound_launches.get(key)
         if launch is None:

@@ -661,8 +661,9 @@ def test_split_solve_matches_minimise_on_real_soft_steps(tmp_path):
     ``minimise`` on the same real soft solves (falling, landing on the ground and on each other: pairs, friction,
     one island or several), every third with a tiny trust radius so that updates are cut by it: the same
     iterations, convergence and trust-limited updates, the same state to round-off (only the update norms and
-    the slope are summed in another order), and nothing handed back. (Several islands in one solve: the test
-    below.)"""
+    the slope are summed in another order), and nothing handed back; with the limits left to the kernel, its
+    threshold and trust radius are ``StepObjective``'s to round-off and the solve takes the same path. (Several
+    islands in one solve: the test below.)"""
     solves = _captured_soft_solves(tmp_path)
     assert len(solves) >= 10
     trust_limited = with_pairs = 0
@@ -679,6 +680,13 @@ def test_split_solve_matches_minimise_on_real_soft_steps(tmp_path):
         assert bool((gap <= 1e-6 * settings.tolerance * scale).all()), (gap / (settings.tolerance * scale)).tolist()
         trust_limited += out.counters["trust_limited_steps"]
         with_pairs += int(split.pairs.num_pairs > 0)
+        if trust_factor == 1.0:  # the kernel's own threshold and trust radius: StepObjective's, to round-off
+            own_objective = make()
+            own = own_objective.evaluator.solve_split(own_objective, q0, None, None, settings)
+            torch.testing.assert_close(own_objective.evaluator.threshold, settings.tolerance * scale, rtol=1e-12, atol=0.0)
+            torch.testing.assert_close(own_objective.evaluator.trust, trust, rtol=1e-12, atol=0.0)
+            assert torch.equal(own.iterations, out.iterations) and torch.equal(own.converged, out.converged)
+            assert bool((reference.mass_norm(own.q - out.q) <= 1e-6 * settings.tolerance * scale).all())
     assert trust_limited > 0 and with_pairs > 0, (trust_limited, with_pairs)
 
 
@@ -706,6 +714,9 @@ def test_split_solve_of_deformable_islands_hands_back_what_only_minimise_does():
     out = split.evaluator.solve_split(split, q0, None, None, settings)
     assert int(ref.iterations.min()) >= 2 and not bool(ref.converged.all())  # one island stops at the cap
     assert torch.equal(out.iterations, ref.iterations) and torch.equal(out.converged, ref.converged)
+    torch.testing.assert_close(split.evaluator.threshold, settings.tolerance * reference.motion_scale(), rtol=1e-12,
+                               atol=0.0)  # fmt: skip
+    torch.testing.assert_close(split.evaluator.trust, reference.trust_radius(), rtol=1e-12, atol=0.0)
     gap = reference.mass_norm(out.q - ref.q)  # (30 trust-limited updates: alpha's round-off adds up)
     assert bool((gap <= 1e-4 * settings.tolerance * reference.motion_scale()).all())
     unlagged = objective(lagged=False)
