@@ -776,6 +776,20 @@ def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp
             have = int(1)
 
 
+@wp.func
+def _solve_start(bd: Bodies, sc: SceneArgs, st: StepData, threshold: wp.array(dtype=wp.float64),
+                 trust_m: wp.array(dtype=wp.float64), isl: int, limits_given: int, tolerance: wp.float64,
+                 gravity_norm: wp.float64):  # fmt: skip
+    """What a solve of island ``isl`` needs before its first evaluation: unless ``limits_given``, its convergence
+    threshold and trust radius (:func:`_step_limits`) written to ``threshold`` / ``trust_m``; its scene margins
+    (:func:`_scene_margins`)."""
+    if limits_given == 0:
+        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
+        threshold[isl] = thr_isl
+        trust_m[isl] = trust_isl
+    _scene_margins(bd, sc, st, isl)
+
+
 @wp.kernel
 def newton_islands_kernel(
     bd: Bodies,
@@ -790,14 +804,9 @@ def newton_islands_kernel(
     tolerance: wp.float64,
     gravity_norm: wp.float64,
 ):
-    """Island ``isl``: :func:`_newton` from ``wk.q``. Unless ``limits_given``, the convergence threshold and
-    trust radius are computed here (:func:`_step_limits`) and written to ``threshold`` / ``trust_m``."""
+    """Island ``isl``: :func:`_newton` from ``wk.q``, after :func:`_solve_start`."""
     isl = wp.tid()
-    if limits_given == 0:
-        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
-        threshold[isl] = thr_isl
-        trust_m[isl] = trust_isl
-    _scene_margins(bd, sc, st, isl)
+    _solve_start(bd, sc, st, threshold, trust_m, isl, limits_given, tolerance, gravity_norm)
     _newton(bd, sc, st, wk, isl, threshold[isl], trust_m[isl], iterations, line_search_steps)
 
 
@@ -832,14 +841,9 @@ def split_start_kernel(
     tolerance: wp.float64,
     gravity_norm: wp.float64,
 ):
-    """Island ``isl``'s scene margins (:func:`_scene_margins`) of the bound step and, unless ``limits_given``,
-    its convergence threshold and trust radius (:func:`_step_limits`) into ``threshold`` / ``trust_m``."""
-    isl = wp.tid()
-    if limits_given == 0:
-        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
-        threshold[isl] = thr_isl
-        trust_m[isl] = trust_isl
-    _scene_margins(bd, sc, st, isl)
+    """:func:`_solve_start` of island ``isl`` (:meth:`FusedNewton.solve_split`, whose first evaluation is the
+    objective's)."""
+    _solve_start(bd, sc, st, threshold, trust_m, wp.tid(), limits_given, tolerance, gravity_norm)
 
 
 @wp.kernel
@@ -1483,6 +1487,17 @@ class FusedNewton:
             return value, None, None
         return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size)
 
+    def _given_limits(self, scale: torch.Tensor | None, trust_m: torch.Tensor | None, settings: NewtonSettings) -> bool:
+        """Whether a solve was given its limits (then ``tolerance * scale`` and ``trust_m`` are copied to
+        ``self.threshold`` and ``self.trust``) or leaves them to the kernel (both None)."""
+        given = scale is not None
+        if given != (trust_m is not None):
+            raise ValueError("FusedNewton: give a solve both scale and trust_m, or neither")
+        if given:
+            self.threshold.copy_(settings.tolerance * scale)
+            self.trust.copy_(trust_m)
+        return given
+
     def solve(self, objective: StepObjective, q0: torch.Tensor, scale: torch.Tensor | None,
               trust_m: torch.Tensor | None, settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
         """Minimise ``objective`` (a :class:`StepObjective` on this workspace's contact buffers, as just
@@ -1493,12 +1508,7 @@ class FusedNewton:
         n_isl, size = self.shape
         st = self._step_data(objective)
         self.q.copy_(q0.reshape(-1))
-        given = scale is not None
-        if given != (trust_m is not None):
-            raise ValueError("FusedNewton.solve: give both scale and trust_m, or neither")
-        if given:
-            self.threshold.copy_(settings.tolerance * scale)
-            self.trust.copy_(trust_m)
+        given = self._given_limits(scale, trust_m, settings)
         wp.launch(newton_islands_kernel, dim=n_isl, device=self.device, inputs=[
             self.bodies, self.scene, st, *self._limits, int(settings.iterations), int(settings.line_search_steps),
             self.work, int(given), wp.float64(settings.tolerance), wp.float64(self._gravity_norm),
@@ -1544,12 +1554,7 @@ class FusedNewton:
         self.grad.copy_(ev.grad.reshape(-1))
         self._island_outputs()
         self._value.copy_(ev.value)
-        given = scale is not None
-        if given != (trust_m is not None):
-            raise ValueError("FusedNewton.solve_split: give both scale and trust_m, or neither")
-        if given:
-            self.threshold.copy_(settings.tolerance * scale)
-            self.trust.copy_(trust_m)
+        given = self._given_limits(scale, trust_m, settings)
         self.stats.zero_()
         self.stats[:, STATUS] = RUNNING
         wp.launch(split_start_kernel, dim=n_isl, device=self.device, inputs=[
