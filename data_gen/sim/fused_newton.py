@@ -1505,7 +1505,7 @@ class FusedNewton:
         (n_isl,) as in ``minimise``, or both None: the kernel computes them as ``objective.motion_scale()``
         and ``objective.trust_radius()`` do (then in ``self.threshold``, ``tolerance * scale``, and
         ``self.trust``). None when an island needs ``minimise``."""
-        n_isl, size = self.shape
+        n_isl = self.shape[0]
         st = self._step_data(objective)
         self.q.copy_(q0.reshape(-1))
         given = self._given_limits(scale, trust_m, settings)
@@ -1513,13 +1513,19 @@ class FusedNewton:
             self.bodies, self.scene, st, *self._limits, int(settings.iterations), int(settings.line_search_steps),
             self.work, int(given), wp.float64(settings.tolerance), wp.float64(self._gravity_norm),
         ])  # fmt: skip
-        out = self.stats.to(torch.int64)
-        if bool((out[:, STATUS] != SOLVED).any()):
+        if bool((self.stats[:, STATUS] != SOLVED).any()):
             return None
+        return self._result()
+
+    def _result(self, host_evaluations: int = 0) -> NewtonResult:
+        """The solve's result from ``self.q`` and the per-island ``self.stats`` (``host_evaluations``: evaluations
+        with derivatives the host made besides the kernel's)."""
+        n_isl, size = self.shape
+        out = self.stats.to(torch.int64)
         totals = out.sum(0).tolist()
         counters = {
             "evaluations": totals[EVALUATIONS],
-            "evaluations_with_derivatives": totals[EVALUATIONS_WITH_DERIVATIVES],
+            "evaluations_with_derivatives": host_evaluations + totals[EVALUATIONS_WITH_DERIVATIVES],
             "strict_projections": 0,
             "line_search_failures": totals[LINE_SEARCH_FAILURES],
             "line_search_extended": totals[LINE_SEARCH_EXTENDED],
@@ -1540,9 +1546,10 @@ class FusedNewton:
         are what this saves. The same decisions as ``minimise`` on the same values (its norms and slope summed
         in another order). ``scale`` and ``trust_m`` (n_isl,) as in ``minimise``, or both None: the kernel
         computes them as ``objective.motion_scale()`` and ``objective.trust_radius()`` do (:func:`_step_limits`;
-        then in ``self.threshold``, ``tolerance * scale``, and ``self.trust``). None when ``objective`` keeps no matrix or an island needs what
-        only ``minimise`` does (a matrix indefinite after the ridge, a non-finite value): the caller runs
-        ``minimise`` (whose first evaluation is then the kernel's, the matrix being kept)."""
+        then in ``self.threshold``, ``tolerance * scale``, and ``self.trust``). None when ``objective`` keeps no
+        matrix or an island needs what only ``minimise`` does (a matrix indefinite after the ridge, a non-finite
+        value): the caller runs ``minimise`` (whose first evaluation is then the kernel's, the matrix being
+        kept)."""
         n_isl, size = self.shape
         ev = objective.evaluate(q0, True)
         base = objective.kept_matrix
@@ -1571,40 +1578,22 @@ class FusedNewton:
                 ],
             )  # fmt: skip
         grad = self.grad.view(n_isl, size)
-        status = self.stats[:, STATUS]
-        hess, running = ev.hess, None
+        status = self.stats[:, STATUS]  # (a view: what the last launch left)
+        hess = ev.hess
         for _ in range(settings.iterations):
             dq, ok = cholesky_direction(hess, grad)
-            if ok is not None and not bool((ok if running is None else ok | ~running).all()):
+            # an island that has stopped keeps its last matrix: only the running ones must factorise
+            if ok is not None and not bool((ok | (status != RUNNING)).all()):
                 return None  # minimise projects every elastic block of such an island
             self.dq.copy_(dq.reshape(-1))
             launch.launch()
-            if n_isl == 1:
-                code = int(status[0])
-                if code == NEEDS_FALLBACK:
-                    return None
-                if code != RUNNING:
-                    break
-            else:
-                if bool((status == NEEDS_FALLBACK).any()):
-                    return None
-                running = status == RUNNING
-                if not bool(running.any()):
-                    break
+            codes = status.tolist()  # one host read per iteration
+            if NEEDS_FALLBACK in codes:
+                return None
+            if RUNNING not in codes:
+                break
             hess = torch.add(base, self.hess.view(n_isl, size, size))
-        out = self.stats.to(torch.int64)
-        totals = out.sum(0).tolist()
-        converged = out[:, CONVERGED].bool()
-        counters = {
-            "evaluations": totals[EVALUATIONS],
-            "evaluations_with_derivatives": 1 + totals[EVALUATIONS_WITH_DERIVATIVES],
-            "strict_projections": 0,
-            "line_search_failures": totals[LINE_SEARCH_FAILURES],
-            "line_search_extended": totals[LINE_SEARCH_EXTENDED],
-            "trust_limited_steps": totals[TRUST_LIMITED],
-            "unconverged_solves": n_isl - int(converged.sum()),
-        }
-        return NewtonResult(self.q.view(n_isl, size).clone(), out[:, ITERATIONS], converged, counters)
+        return self._result(host_evaluations=1)  # (the objective's first evaluation)
 
     def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],
                        num_sub: int | Sequence[int], gravity_m_s2: torch.Tensor, settings: NewtonSettings,

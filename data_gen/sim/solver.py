@@ -828,22 +828,20 @@ class ImplicitEulerSolver:
         settings = NewtonSettings(
             self.preset.newton_iterations, self.preset.newton_tolerance, self.preset.line_search_steps
         )
+        # one-handle islands: the whole solve in one launch; deformable islands with a kept elastic matrix: the
+        # kernel iterates, the host factorises (both compute the step's convergence scale and trust radius)
         fused = objective.workspace.fused if self.fused_newton else None
-        # the kernel computes the step's convergence scale and trust radius itself
-        result = None if fused is None else fused.solve(objective, q0, None, None, settings)
-        from_kernel = result is not None  # the recorder reads the forces the kernel computes at its result
-        if fused is not None:
-            if result is None:
-                self.counters["fused_handed_back"] += 1
-            else:
-                self.counters["fused_island_solves"] += len(islands)
-        # islands of deformable objects with a kept elastic matrix: the kernel iterates, the host factorises
         split = objective.evaluator if fused is None and self.preset.lagged_elastic_hessian else None
-        if split is not None:
-            result = split.solve_split(objective, q0, None, None, settings)
-            self.counters["split_handed_back" if result is None else "split_island_solves"] += (
+        result, kind = None, None
+        if fused is not None:
+            result, kind = fused.solve(objective, q0, None, None, settings), "fused"
+        elif split is not None:
+            result, kind = split.solve_split(objective, q0, None, None, settings), "split"
+        if kind is not None:
+            self.counters[f"{kind}_handed_back" if result is None else f"{kind}_island_solves"] += (
                 1 if result is None else len(islands)
             )
+        from_kernel = fused is not None and result is not None  # the recorder reads the forces the kernel computes
         if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
             result = minimise(objective, q0, objective.motion_scale(), objective.trust_radius(), settings,
                               on_gradient=check_gradient, on_indefinite=indefinite)  # fmt: skip
