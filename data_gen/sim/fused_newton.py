@@ -987,7 +987,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
     per pair its start positions, normal j -> i and frozen ``mu lam``. The pairs that can touch within the
     sub-step are the island's live ones (``st.live_order``): as the solver's sub-step filter
     (:meth:`data_gen.sim.contacts.BroadPhase.within_reach`), start gap below the margin plus 1.5 h times
-    the spheres' relative speed plus what gravity adds to both."""
+    the sum of the two spheres' speeds (in the static scene's frame) plus what gravity adds to both."""
     h = ss.h[isl]
     for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
         o = bd.island_objects[slot]
@@ -1028,7 +1028,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             vj = st.start_v[oj, st.sph_j[p]]
         delta = xi - xj
         dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
-        if dist - st.radius_sum[p] >= wp.float64(1.5) * h * wp.length(vi - vj) + reach_g:
+        if dist - st.radius_sum[p] >= wp.float64(1.5) * h * (wp.length(vi) + wp.length(vj)) + reach_g:
             continue  # cannot touch within the sub-step
         st.live_order[st.pair_start[isl] + live] = p
         live = live + 1
