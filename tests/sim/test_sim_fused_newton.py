@@ -724,3 +724,35 @@ def test_split_solve_of_deformable_islands_hands_back_what_only_minimise_does():
     bad[0, 0] = float("nan")
     again = objective()
     assert again.evaluator.solve_split(again, bad, None, None, settings) is None
+
+
+def test_fused_substep_filter_keeps_the_pairs_whose_gap_is_within_both_speeds_in_the_scene_frame():
+    """The pairs a fused sub-step evaluates: start gap below the margin plus 1.5 h (|v_i| + |v_j|) plus what
+    gravity adds to both (:meth:`BroadPhase.within_reach`'s bound), with the speeds in the static scene's frame.
+    The objects fall together at 3 m/s: a bound on the relative speed (zero) would drop the pairs the ground can
+    bring together within the sub-step by stopping one object (see ``test_boxes_released_together_...``)."""
+    model, layout, distance, _, _, pairs, tm = _setup(StaticScene(), 3, (1, 1, 1))
+    gen = torch.Generator().manual_seed(8)
+    tmdot = 0.2 * torch.randn(tm.shape, generator=gen, dtype=D)
+    tmdot[:, 2, 3] = -3.0  # the translation column: every object falls at 3 m/s (plus a little spin and strain)
+    margin = 0.004
+    objective = StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs)
+    fused = FusedNewton(model, layout, objective.contact, objective.island_mass_kg, objective.min_median_radius_m)
+    mu = torch.full((pairs.num_pairs,), 0.5, dtype=D)
+    out = fused.solve_substeps(tm, tmdot, H_S, 1, GRAVITY, NewtonSettings(40, 3e-4, 10),
+                               objective.scene_stiffness_n_m, 0.01 * H_S, pairs, mu, margin)  # fmt: skip
+    assert out is not None
+    start, count = fused.pair_start.tolist(), fused.live_count.tolist()
+    live = sorted(int(p) for i in range(len(count)) for p in fused.live_order[start[i] : start[i] + count[i]])
+    # the bound from the start state, in float64 on the host
+    x, v = model.sphere_positions(tm), model.sphere_b @ tmdot.transpose(1, 2)  # x = x0 + Tm b, v = Tmdot b
+    xi, vi = x[pairs.obj_i, pairs.sph_i], v[pairs.obj_i, pairs.sph_i]
+    partner = pairs.obj_j >= 0
+    xj = torch.where(partner[:, None], x[pairs.obj_j.clamp(min=0), pairs.sph_j], pairs.frozen_x_j)
+    vj = torch.where(partner[:, None], v[pairs.obj_j.clamp(min=0), pairs.sph_j], torch.zeros(3, dtype=D))
+    gap = (xi - xj).norm(dim=1) - pairs.radius_sum_m
+    reach = 1.5 * H_S * (vi.norm(dim=1) + vj.norm(dim=1)) + 2.0 * 9.81 * H_S**2 + margin
+    expected = torch.nonzero(gap < reach).flatten().tolist()
+    relative = torch.nonzero(gap < 1.5 * H_S * (vi - vj).norm(dim=1) + 2.0 * 9.81 * H_S**2 + margin).flatten()
+    assert live == expected
+    assert 0 < len(relative) < len(expected) < pairs.num_pairs  # the frame matters here, and the filter filters
