@@ -55,6 +55,7 @@ from data_gen.render.rgb import RgbRasterizer
 from data_gen.scenario import Scenario
 from data_gen.sim.contact_points import SurfaceSamples
 from data_gen.sim.material import Material
+from data_gen.sim.overlap import MAX_OVERLAP_FRACTION, deepest_overlap
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.recording import SimulationResult
 from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_from_tmat, displacement_from_tmat, tmat_from_z
@@ -229,8 +230,10 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
 
 def check_simulation(result: SimulationResult, materials: list[Material]) -> None:
     """Reject a simulation whose labels would be wrong: non-finite positions, an object below the ground
-    (tunnelling) or inverted material (det F <= 0: a soft object crushed past what the reduced model
-    represents, e.g. E = 1 kPa hit by a heavy block).  Raises :class:`SequenceRejected` naming it."""
+    (tunnelling), two objects sunk into each other (contact spheres overlapping by more than
+    ``MAX_OVERLAP_FRACTION`` of their radii's sum: a contact the solver missed) or inverted material
+    (det F <= 0: a soft object crushed past what the reduced model represents, e.g. E = 1 kPa hit by a heavy
+    block).  Raises :class:`SequenceRejected` naming it."""
     for track, material in zip(result.objects, materials):
         pts = track.contact_positions_m
         if not np.isfinite(pts).all():
@@ -238,6 +241,16 @@ def check_simulation(result: SimulationResult, materials: list[Material]) -> Non
         lowest = float(pts[..., 2].min())
         if lowest < -0.5 * float(track.contact_radius_m.max()) - 0.01:
             raise SequenceRejected("tunnelling", f"object {track.object_id} reached z = {lowest:.3f} m below the ground")
+    tracks = result.objects
+    overlap = deepest_overlap([t.object_id for t in tracks], [t.contact_positions_m for t in tracks],
+                              [t.contact_radius_m for t in tracks])  # fmt: skip
+    if overlap is not None and overlap.fraction > MAX_OVERLAP_FRACTION:
+        a, c = overlap.object_ids
+        raise SequenceRejected(
+            "interpenetration", f"objects {a} and {c} overlap by {1e3 * overlap.depth_m:.1f} mm at frame {overlap.frame} "
+            f"({overlap.fraction:.2f} of their contact spheres' radii; at most {MAX_OVERLAP_FRACTION})"
+        )
+    for track, material in zip(result.objects, materials):
         det_min = float(track.det_f.min())
         if not det_min > 0.0:
             frame = int(np.argmin(track.det_f.min(axis=1)))

@@ -94,3 +94,43 @@ def test_a_draw_the_simulator_cannot_run_is_rejected_not_fatal(monkeypatch):
     with pytest.raises(SequenceRejected) as err:
         pipeline.simulate(_Scenario(), [], None, None)
     assert err.value.reason == "unsimulatable" and "too soft" in err.value.detail
+
+
+@pytest.fixture(scope="module")
+def two_boxes_side_by_side():
+    """Two 10 cm boxes resting 2 cm apart on the ground (no contact between them)."""
+    half = (0.05, 0.05, 0.05)
+    pts = np.random.default_rng(0).uniform(-1, 1, (400, 3)) * half
+    specs = [SimObjectSpec(f"box{k}", pts, 1e-3, MATERIAL, position_m=(0.12 * k, 0, 0.05), surface=box_surface(half, 2000, k))
+             for k in range(2)]  # fmt: skip
+    return Simulator(StaticScene(), specs, (0, 0, -9.81), "draft", seed=0).run(4, 25.0)
+
+
+def test_two_objects_sunk_into_each_other_are_rejected_with_the_depth(two_boxes_side_by_side):
+    """A contact the solver missed shows as spheres of two objects overlapping deeply: beyond half the sum of
+    their radii the sequence is rejected, naming the objects, the depth and the frame; below it, it passes.
+    Planted: two spheres per object (radii 1 and 1.5 cm), apart except at frame 2, where box 2's first sphere
+    sits above box 1's first by (1 - fraction) x 2.5 cm."""
+    from data_gen.sim.overlap import deepest_overlap
+
+    check_simulation(two_boxes_side_by_side, [MATERIAL, MATERIAL])
+    a, b = two_boxes_side_by_side.objects
+    assert deepest_overlap([1, 2], [a.contact_positions_m, b.contact_positions_m], [a.contact_radius_m, b.contact_radius_m]) is None
+    frames = a.contact_positions_m.shape[0]
+    for fraction, rejected in ((0.4, False), (0.6, True)):
+        bad = copy.deepcopy(two_boxes_side_by_side)
+        a, b = bad.objects
+        a.contact_radius_m, b.contact_radius_m = np.array([0.01, 0.01]), np.array([0.015, 0.01])
+        a.contact_positions_m = np.tile([[0.0, 0.0, 0.1], [1.0, 0.0, 0.1]], (frames, 1, 1))
+        b.contact_positions_m = np.tile([[0.0, 0.5, 0.1], [5.0, 0.0, 0.1]], (frames, 1, 1))
+        b.contact_positions_m[2, 0] = [0.0, 0.0, 0.1 + (1.0 - fraction) * 0.025]
+        found = deepest_overlap([1, 2], [a.contact_positions_m, b.contact_positions_m], [a.contact_radius_m, b.contact_radius_m])
+        assert found.object_ids == (1, 2) and found.frame == 2
+        assert found.fraction == pytest.approx(fraction, rel=1e-9)
+        assert found.depth_m == pytest.approx(fraction * 0.025, rel=1e-9)
+        if not rejected:
+            check_simulation(bad, [MATERIAL, MATERIAL])
+            continue
+        with pytest.raises(SequenceRejected, match=r"objects 1 and 2 overlap by 15.0 mm at frame 2 \(0.60 of") as err:
+            check_simulation(bad, [MATERIAL, MATERIAL])
+        assert err.value.reason == "interpenetration"
