@@ -127,13 +127,7 @@ class BroadPhase:
     ) -> np.ndarray:
         """(P,) bool: which of the step's candidate pairs (global indices gi, gj) can touch within a
         shorter (sub)step of ``h_s`` seconds, from the current sphere centres ``x_all`` (S, 3), m."""
-        # :meth:`reach`, in numpy (the same bound; this runs every sub-step)
-        counts = np.diff(self.offsets)
-        velocity = np.concatenate(
-            [np.zeros((int(c), 3)) if v is None else v.numpy() for c, v in zip(counts, velocities)]
-        )
-        speed = np.sqrt((velocity**2).sum(1))
-        reach = 1.5 * speed * h_s + self.gravity_m_s2 * h_s**2
+        reach = self.reach(velocities, h_s)
         radii = self.radii_all.numpy()
         d = x_all[gi] - x_all[gj]
         gap = np.sqrt((d * d).sum(1)) - radii[gi] - radii[gj]
