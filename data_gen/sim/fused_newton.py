@@ -171,6 +171,8 @@ class Work:
     hess: wp.array(dtype=wp.float64)
     chol: wp.array(dtype=wp.float64)  # the envelope Cholesky factor
     dq: wp.array(dtype=wp.float64)  # the Newton update
+    chol4: wp.array(dtype=wp.vec4d)  # ``chol`` read four entries at a time (see _subtract_products)
+    dq4: wp.array(dtype=wp.vec4d)  # ``dq`` likewise
     first: wp.array(dtype=wp.int32)  # per row: the first column inside the envelope
     band: wp.array2d(dtype=wp.int32)  # (n, 2): the columns each object's rows hold in hess
     stats: wp.array2d(dtype=wp.int32)  # (n_isl, NUM_STATS)
@@ -549,9 +551,41 @@ def _envelope(bd: Bodies, band: wp.array2d(dtype=wp.int32), first: wp.array(dtyp
 
 
 @wp.func
-def _cholesky(hess: wp.array(dtype=wp.float64), chol: wp.array(dtype=wp.float64), first: wp.array(dtype=wp.int32),
-              isl: int, n_size: int, ridge: wp.float64):  # fmt: skip
-    """Lower Cholesky factor of ``(H + H^T) / 2 + ridge I`` of island ``isl`` into ``chol``; 1 on success.
+def _subtract_products(chol: wp.array(dtype=wp.float64), chol4: wp.array(dtype=wp.vec4d), row_a: int, row_b: int,
+                       k0: int, k1: int, v0: wp.float64, v1: wp.float64):  # fmt: skip
+    """``v0`` minus the products ``chol[row_a + k] chol[row_b + k]`` of the even ``k - k0``, ``v1`` minus those of
+    the odd, for k in [k0, k1), each chain in increasing k: two interleaved sums, so the additions are not one
+    dependent chain. Four entries are read at a time through ``chol4`` (an index costs more than a product
+    here: warp's array access wraps negative indices and multiplies by the stride), so ``row_a + k0`` and
+    ``row_b + k0`` must be multiples of 4: an island's rows are (its size is a multiple of 12) and so are the
+    envelope's first columns (object starts). The same products in the same order as one entry at a time."""
+    a0 = v0
+    a1 = v1
+    quads = (k1 - k0) // 4
+    qa = (row_a + k0) // 4
+    qb = (row_b + k0) // 4
+    for t in range(quads):
+        x = chol4[qa + t]
+        y = chol4[qb + t]
+        a0 = a0 - x[0] * y[0]
+        a1 = a1 - x[1] * y[1]
+        a0 = a0 - x[2] * y[2]
+        a1 = a1 - x[3] * y[3]
+    k = k0 + 4 * quads
+    if k + 1 < k1:
+        a0 = a0 - chol[row_a + k] * chol[row_b + k]
+        a1 = a1 - chol[row_a + k + 1] * chol[row_b + k + 1]
+        k = k + 2
+    if k < k1:
+        a0 = a0 - chol[row_a + k] * chol[row_b + k]
+    return a0, a1
+
+
+@wp.func
+def _cholesky(hess: wp.array(dtype=wp.float64), chol: wp.array(dtype=wp.float64), chol4: wp.array(dtype=wp.vec4d),
+              first: wp.array(dtype=wp.int32), isl: int, n_size: int, ridge: wp.float64):  # fmt: skip
+    """Lower Cholesky factor of ``(H + H^T) / 2 + ridge I`` of island ``isl`` into ``chol`` (``chol4``: the same
+    memory, see :func:`_subtract_products`); 1 on success.
 
     Envelope (profile) factorisation by rows: row i of the factor is zero left of ``first[i]`` (the
     envelope of the matrix bounds the factor's), and only entries inside the envelope are computed, read
@@ -564,29 +598,11 @@ def _cholesky(hess: wp.array(dtype=wp.float64), chol: wp.array(dtype=wp.float64)
         fi = first[start + i]
         row_i = base + i * n_size
         for j in range(fi, i):
-            fj = first[start + j]
             row_j = base + j * n_size
-            # two interleaved sums: the dot product's additions are not one dependent chain
-            v0 = wp.float64(0.5) * (hess[row_i + j] + hess[row_j + i])
-            v1 = _ZERO
-            k0 = wp.max(fi, fj)
-            half = (j - k0) // 2
-            for t in range(half):
-                k = k0 + 2 * t
-                v0 = v0 - chol[row_i + k] * chol[row_j + k]
-                v1 = v1 - chol[row_i + k + 1] * chol[row_j + k + 1]
-            if k0 + 2 * half < j:
-                v0 = v0 - chol[row_i + j - 1] * chol[row_j + j - 1]
+            v0, v1 = _subtract_products(chol, chol4, row_i, row_j, wp.max(fi, first[start + j]), j,
+                                        wp.float64(0.5) * (hess[row_i + j] + hess[row_j + i]), _ZERO)  # fmt: skip
             chol[row_i + j] = (v0 + v1) / chol[row_j + j]
-        d0 = hess[row_i + i] + ridge
-        d1 = _ZERO
-        half_d = (i - fi) // 2
-        for t in range(half_d):
-            k = fi + 2 * t
-            d0 = d0 - chol[row_i + k] * chol[row_i + k]
-            d1 = d1 - chol[row_i + k + 1] * chol[row_i + k + 1]
-        if fi + 2 * half_d < i:
-            d0 = d0 - chol[row_i + i - 1] * chol[row_i + i - 1]
+        d0, d1 = _subtract_products(chol, chol4, row_i, row_i, fi, i, hess[row_i + i] + ridge, _ZERO)
         d = d0 + d1
         if not (d > _ZERO):
             return 0
@@ -595,22 +611,46 @@ def _cholesky(hess: wp.array(dtype=wp.float64), chol: wp.array(dtype=wp.float64)
 
 
 @wp.func
-def _newton_direction(chol: wp.array(dtype=wp.float64), first: wp.array(dtype=wp.int32),
-                      grad: wp.array(dtype=wp.float64), dq: wp.array(dtype=wp.float64), isl: int, n_size: int):  # fmt: skip
-    """``dq = -(L L^T)^-1 grad`` of island ``isl`` (``L`` from :func:`_cholesky`, inside the envelope)."""
+def _newton_direction(chol: wp.array(dtype=wp.float64), chol4: wp.array(dtype=wp.vec4d),
+                      first: wp.array(dtype=wp.int32), grad: wp.array(dtype=wp.float64), dq: wp.array(dtype=wp.float64),
+                      dq4: wp.array(dtype=wp.vec4d), isl: int, n_size: int):  # fmt: skip
+    """``dq = -(L L^T)^-1 grad`` of island ``isl`` (``L`` from :func:`_cholesky`, inside the envelope; ``chol4`` and
+    ``dq4`` the same memory read four entries at a time, as in :func:`_subtract_products`: the same operations in
+    the same order)."""
     base = isl * n_size * n_size
     start = isl * n_size
     for i in range(n_size):
         v = -grad[start + i]
-        for k in range(first[start + i], i):
-            v = v - chol[base + i * n_size + k] * dq[start + k]
-        dq[start + i] = v / chol[base + i * n_size + i]
+        row = base + i * n_size
+        fi = first[start + i]
+        quads = (i - fi) // 4
+        ql = (row + fi) // 4
+        qd = (start + fi) // 4
+        for t in range(quads):
+            lq = chol4[ql + t]
+            y = dq4[qd + t]
+            v = v - lq[0] * y[0]
+            v = v - lq[1] * y[1]
+            v = v - lq[2] * y[2]
+            v = v - lq[3] * y[3]
+        for k in range(fi + 4 * quads, i):
+            v = v - chol[row + k] * dq[start + k]
+        dq[start + i] = v / chol[row + i]
     for ii in range(n_size):  # L^T dq = y by columns of L: row i of L touches only its envelope
         i = n_size - 1 - ii
-        x = dq[start + i] / chol[base + i * n_size + i]
+        row = base + i * n_size
+        x = dq[start + i] / chol[row + i]
         dq[start + i] = x
-        for k in range(first[start + i], i):
-            dq[start + k] = dq[start + k] - chol[base + i * n_size + k] * x
+        fi = first[start + i]
+        quads = (i - fi) // 4
+        ql = (row + fi) // 4
+        qd = (start + fi) // 4
+        for t in range(quads):
+            c = chol4[ql + t]
+            z = dq4[qd + t]
+            dq4[qd + t] = wp.vec4d(z[0] - c[0] * x, z[1] - c[1] * x, z[2] - c[2] * x, z[3] - c[3] * x)
+        for k in range(fi + 4 * quads, i):
+            dq[start + k] = dq[start + k] - chol[row + k] * x
 
 
 @wp.func
@@ -762,11 +802,11 @@ def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp
             stats[isl, STATUS] = NEEDS_FALLBACK
             return
         _envelope(bd, band, first, isl)
-        if _cholesky(hess, chol, first, isl, n_size, _ZERO) == 0:
-            if _cholesky(hess, chol, first, isl, n_size, wp.float64(1e-10) * biggest) == 0:
+        if _cholesky(hess, chol, wk.chol4, first, isl, n_size, _ZERO) == 0:
+            if _cholesky(hess, chol, wk.chol4, first, isl, n_size, wp.float64(1e-10) * biggest) == 0:
                 stats[isl, STATUS] = NEEDS_FALLBACK  # minimise projects every elastic block of the island
                 return
-        _newton_direction(chol, first, grad, dq, isl, n_size)
+        _newton_direction(chol, wk.chol4, first, grad, dq, wk.dq4, isl, n_size)
         stats[isl, ITERATIONS] += 1
         outcome, value = _take_update(bd, sc, st, wk, isl, thr, trust, line_search_steps, 1, value)
         if outcome == STOPPED:
@@ -1331,6 +1371,7 @@ class FusedNewton:
             arrays[name] for name in ("q", "trial_q", "grad", "hess", "chol", "dq")
         )
         wk.first, wk.stats = arrays["first"], arrays["stats"]
+        wk.chol4, wk.dq4 = arrays["chol4"], arrays["dq4"]
         self._limits = [arrays["threshold"], arrays["trust"]]
         self._bound_launches.clear()  # solve_split's launch holds the limits' arrays (packed by value)
         st = self._step
@@ -1364,7 +1405,12 @@ class FusedNewton:
             "h2": torch.zeros(n_isl, **like),  # s^2 per island
             "sub_h": torch.zeros(n_isl, **like), "sub_count": torch.zeros(n_isl, **ints),  # sub-steps (s), count
         }  # fmt: skip
-        entry = (scratch, {name: _wp(tensor) for name, tensor in scratch.items()})
+        if size % 4:
+            raise ValueError(f"island size {size}: the kernels read the factor four entries at a time and need a multiple "
+                             "of 4 (every object has 12 unknowns per handle)")
+        views = {name: _wp(tensor) for name, tensor in scratch.items()}
+        views["chol4"], views["dq4"] = (_wp(scratch[name].view(-1, 4), wp.vec4d) for name in ("chol", "dq"))
+        entry = (scratch, views)
         self._island_scratch[key] = entry
         while len(self._island_scratch) > _SCRATCH_SHAPES:
             self._island_scratch.popitem(last=False)
