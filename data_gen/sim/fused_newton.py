@@ -140,7 +140,7 @@ class StepData:
     stiffness: wp.array2d(dtype=wp.float64)  # (n, S) N/m, 0 on padding
     friction_scale: wp.array2d(dtype=wp.float64)  # (n, S) mu lam, N
     start_x: wp.array2d(dtype=wp.vec3d)
-    start_v: wp.array2d(dtype=wp.vec3d)  # (n, S) scratch of sub-steps: sphere velocities at their start, m/s
+    start_speed: wp.array2d(dtype=wp.float64)  # (n, S) scratch of sub-steps: sphere speeds at their start, m/s
     start_normal: wp.array2d(dtype=wp.vec3d)
     num_pairs: int
     pair_start: wp.array(dtype=wp.int32)  # (n_isl + 1,) island i's pairs: pair_order[start[i]:start[i+1]]
@@ -1045,7 +1045,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             stiffness = k * valid
             friction_scale = ss.friction[o] * (k * depth)
             st.start_x[o, s] = x
-            st.start_v[o, s] = sphere_velocity(ss.tmdot, bd.b, o, s, cols)
+            st.start_speed[o, s] = wp.length(sphere_velocity(ss.tmdot, bd.b, o, s, cols))
             st.start_normal[o, s] = n
             st.stiffness[o, s] = stiffness
             st.friction_scale[o, s] = friction_scale
@@ -1055,20 +1055,21 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             st.margin[o, s] = margin
     live = int(0)
     reach_g = wp.float64(2.0) * ss.gravity_norm * h * h + ss.pair_margin_m
-    for m in range(st.pair_start[isl], st.pair_start[isl + 1]):  # each sphere's start position and velocity
+    for m in range(st.pair_start[isl], st.pair_start[isl + 1]):  # each sphere's start position and speed
         p = st.pair_order[m]  # computed once above, read here
         oi = st.obj_i[p]
         xi = st.start_x[oi, st.sph_i[p]]
-        vi = st.start_v[oi, st.sph_i[p]]
-        xj = st.frozen_x_j[p]
-        vj = wp.vec3d(_ZERO, _ZERO, _ZERO)
+        speeds = st.start_speed[oi, st.sph_i[p]]
         oj = st.obj_j[p]
+        xj = wp.vec3d(_ZERO, _ZERO, _ZERO)
         if oj >= 0:
             xj = st.start_x[oj, st.sph_j[p]]
-            vj = st.start_v[oj, st.sph_j[p]]
+            speeds = speeds + st.start_speed[oj, st.sph_j[p]]
+        else:
+            xj = st.frozen_x_j[p]
         delta = xi - xj
         dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
-        if dist - st.radius_sum[p] >= wp.float64(1.5) * h * (wp.length(vi) + wp.length(vj)) + reach_g:
+        if dist - st.radius_sum[p] >= wp.float64(1.5) * h * speeds + reach_g:
             continue  # cannot touch within the sub-step
         st.live_order[st.pair_start[isl] + live] = p
         live = live + 1
@@ -1115,13 +1116,10 @@ def _force_sums(bd: Bodies, st: StepData, ss: Substeps, isl: int, j: int):
             ss.scene_sums[j, o, 3 + r] = moment[r]
             ss.scene_sums[j, o, 6 + r] = normal[r]
         ss.scene_sums[j, o, 9] = weight
-    for k in range(st.pair_start[isl], st.pair_start[isl + 1]):  # the island's pairs, in row order
-        g = ss.pair_group[st.pair_order[k]]
-        if g >= 0:
-            for c in range(SUMS):
-                ss.pair_sums[j, g, c] = _ZERO
-    for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
-        p = st.pair_order[k]
+    # the island's pairs with a force, in row order: live ones only (_final_forces leaves the others at zero);
+    # the group sums start at zero (FusedNewton.solve_substeps clears them before the launch)
+    for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
+        p = st.live_order[k]
         f = forces.pair_force[j, p]
         m = wp.length(f)
         g = ss.pair_group[p]
@@ -1304,7 +1302,7 @@ class FusedNewton:
         self.tm_start = torch.zeros_like(self.tm)
         self.margin = torch.zeros_like(model.sphere_radius_m)
         self.moved = torch.zeros(n, **like)  # the kernels' per-object motion bound (scratch)
-        self.start_v = torch.zeros(*model.sphere_radius_m.shape, 3, **like)  # sub-step sphere velocities (scratch)
+        self.start_speed = torch.zeros_like(model.sphere_radius_m)  # sub-step sphere speeds (scratch), m/s
         # (n, 2) columns each object's rows hold in hess (the kernels keep it: hess is cleared only there)
         self.band = torch.zeros(n, 2, dtype=i32, device=model.mass_kg.device)
         # forces() output: one row of ForceOutputs (the pair rows are bound with the pair buffers)
@@ -1320,7 +1318,7 @@ class FusedNewton:
         self.smoothing = torch.zeros(n, **like)  # friction smoothing (m) per object
         self._step.smoothing_m = _wp(self.smoothing)
         self._step.moved = _wp(self.moved)
-        self._step.start_v = _wp(self.start_v, wp.vec3d)
+        self._step.start_speed = _wp(self.start_speed)
         self._pair_capacity = -1
         self._gravity_key: tuple[torch.Tensor, int] | None = None  # the gravity tensor (and version) bound last
         self._substeps: Substeps | None = None
@@ -1730,6 +1728,7 @@ class FusedNewton:
             old = self.sub_pair_sums
             self.sub_pair_sums = old.new_zeros(old.shape[0], 2 * groups, SUMS)
             ss.pair_sums = _wp(self.sub_pair_sums)
+        self.sub_pair_sums[:num_sub, :groups].zero_()  # _force_sums adds each group's forces to zero
         self.pair_group[:num_pairs].copy_(torch.from_numpy(np.asarray(pair_group, dtype=np.int32)))
         ss.with_sums = 1
         return groups
