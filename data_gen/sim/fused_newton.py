@@ -40,8 +40,8 @@ from data_gen.sim.energy.contact_kernels import (
     add_block,
     add_gradient,
     add_pair_derivatives,
-    pair_terms,
-    scene_sphere_terms,
+    pair_contact_terms,
+    scene_contact_terms,
     sphere_position,
 )
 from data_gen.sim.energy.elastic_kernel import (
@@ -116,6 +116,7 @@ class Bodies:
     spd_tolerance_pa: wp.array(dtype=wp.float64)
     rest: wp.array2d(dtype=wp.vec3d)  # (n, S) sphere centres at rest, m
     b: wp.array3d(dtype=wp.float64)  # (n, S, K)
+    b4: wp.array3d(dtype=wp.vec4d)  # (n, S, K / 4) ``b`` four columns at a time (a one-handle object's row: b4[o, s, 0])
     radius: wp.array2d(dtype=wp.float64)  # (n, S) m
     b_norm: wp.array2d(dtype=wp.float64)  # (n, S) |b|: a sphere moves at most |Tm - Tm_n|_F |b| from its start
     extreme_count: wp.array(dtype=wp.int32)  # (n,) spheres on the hull of the object's basis rows
@@ -260,11 +261,32 @@ def _motion_bound(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), o:
 
 
 @wp.func
+def _sphere_x(bd: Bodies, tm: wp.array3d(dtype=wp.float64), o: int, s: int, cols: int):
+    """:func:`sphere_position` of sphere (o, s) at the states ``tm`` (m): the same sums in the same order, a
+    one-handle object's with its four columns unrolled and its basis row read at once (warp's indexing, not the
+    arithmetic, is what a position costs)."""
+    if cols != 4:
+        return sphere_position(tm, bd.rest, bd.b, o, s, cols)
+    bo = bd.b4[o, s, 0]
+    x = bd.rest[o, s]
+    x = x + wp.vec3d(tm[o, 0, 0], tm[o, 1, 0], tm[o, 2, 0]) * bo[0]
+    x = x + wp.vec3d(tm[o, 0, 1], tm[o, 1, 1], tm[o, 2, 1]) * bo[1]
+    x = x + wp.vec3d(tm[o, 0, 2], tm[o, 1, 2], tm[o, 2, 2]) * bo[2]
+    x = x + wp.vec3d(tm[o, 0, 3], tm[o, 1, 3], tm[o, 2, 3]) * bo[3]
+    return x
+
+
+@wp.func
 def _scene_sphere(bd: Bodies, sc: SceneArgs, st: StepData, tm: wp.array3d(dtype=wp.float64), o: int, s: int,
                   cols: int):  # fmt: skip
-    """:func:`scene_sphere_terms` of sphere (o, s) with the step's and scene's data."""
-    return scene_sphere_terms(
-        tm, cols, bd.rest, bd.b, bd.radius, st.stiffness, st.friction_scale, st.start_x, st.start_normal,
+    """:func:`data_gen.sim.energy.contact_kernels.scene_sphere_terms` of sphere (o, s) with the step's and
+    scene's data."""
+    k = st.stiffness[o, s]
+    if k == _ZERO:
+        zero3 = wp.vec3d(_ZERO, _ZERO, _ZERO)
+        return 0, _ZERO, zero3, wp.mat33d(), zero3
+    return scene_contact_terms(
+        _sphere_x(bd, tm, o, s, cols), k, bd.radius, st.friction_scale, st.start_x, st.start_normal,
         st.smoothing_m[o], sc.has_ground, sc.box_centers, sc.box_rotations, sc.box_half_extents, sc.far_m,
         sc.has_points, sc.grid, sc.static_points, sc.point_radius_m, sc.point_search_m, o, s,
     )  # fmt: skip
@@ -273,18 +295,31 @@ def _scene_sphere(bd: Bodies, sc: SceneArgs, st: StepData, tm: wp.array3d(dtype=
 @wp.func
 def _pair_at(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), p: int):
     """:func:`pair_terms` of candidate pair p: (active, energy, dE/dx_i, Hessian, normal j -> i, its object i,
-    sphere i, columns i, object j (< 0: frozen), sphere j, columns j)."""
+    sphere i, columns i, object j (< 0: frozen), sphere j, columns j). The normal is zero for an inactive pair
+    (no caller reads it). Most evaluated pairs do not touch: the pair's other data is read only when they may
+    (a squared-distance test first, grown by a relative 1e-9: the square root and the exact test follow in
+    :func:`pair_contact_terms`, so the result is the same)."""
     oi = st.obj_i[p]
     si = st.sph_i[p]
     oj = st.obj_j[p]
     sj = st.sph_j[p]
     cols_i = bd.columns[oi]
     cols_j = int(0)
+    xi = _sphere_x(bd, tm, oi, si, cols_i)
+    xj = wp.vec3d(_ZERO, _ZERO, _ZERO)
     if oj >= 0:
         cols_j = bd.columns[oj]
-    active, e, g, h, normal = pair_terms(
-        tm, bd.rest, bd.b, oi, si, cols_i, oj, sj, cols_j, st.frozen_x_j[p], st.pair_stiffness[p],
-        st.radius_sum[p], st.pair_friction_scale[p], st.normal0[p], st.x0_i[p], st.x0_j[p], st.smoothing_m[oi],
+        xj = _sphere_x(bd, tm, oj, sj, cols_j)
+    else:
+        xj = st.frozen_x_j[p]
+    radius_sum = st.radius_sum[p]
+    mu_lam = st.pair_friction_scale[p]
+    delta = xi - xj
+    zero3 = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    if mu_lam <= _ZERO and wp.dot(delta, delta) > radius_sum * radius_sum * wp.float64(1.000000001):
+        return 0, _ZERO, zero3, wp.mat33d(), zero3, oi, si, cols_i, oj, sj, cols_j
+    active, e, g, h, normal = pair_contact_terms(
+        xi, xj, st.pair_stiffness[p], radius_sum, mu_lam, st.normal0[p], st.x0_i[p], st.x0_j[p], st.smoothing_m[oi]
     )  # fmt: skip
     return active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j
 
@@ -351,9 +386,9 @@ def _add_elastic_gradient(grad: wp.array(dtype=wp.float64), flat_index: wp.array
 
 
 @wp.func
-def _affine_row(b: wp.array3d(dtype=wp.float64), o: int, s: int):
+def _affine_row(b: wp.array3d(dtype=wp.vec4d), o: int, s: int):
     """The four basis values of sphere (o, s) of a one-handle object (its ``[x0; 1]`` weights)."""
-    return wp.vec4d(b[o, s, 0], b[o, s, 1], b[o, s, 2], b[o, s, 3])
+    return b[o, s, 0]
 
 
 @wp.func
@@ -492,7 +527,7 @@ def _evaluate(
                 if derivatives != 0:
                     if cols == 4:  # one handle: its 12 unknowns are contiguous
                         first_o = bd.flat_index[o, 0]
-                        bo = _affine_row(bd.b, o, s)
+                        bo = _affine_row(bd.b4, o, s)
                         _add_affine_gradient(grad, first_o, bo, h2 * g)
                         local = first_o - start
                         _add_affine_block(hess, n_size, matrix_base, local, bo, local, bo, h2 * h)
@@ -512,12 +547,12 @@ def _evaluate(
                     gs = h2 * g
                     hs = h2 * h
                     fi = bd.flat_index[oi, 0]
-                    bi = _affine_row(bd.b, oi, si)
+                    bi = _affine_row(bd.b4, oi, si)
                     _add_affine_gradient(grad, fi, bi, gs)
                     _add_affine_block(hess, n_size, matrix_base, fi - start, bi, fi - start, bi, hs)
                     if oj >= 0:
                         fj = bd.flat_index[oj, 0]
-                        bj = _affine_row(bd.b, oj, sj)
+                        bj = _affine_row(bd.b4, oj, sj)
                         _add_affine_gradient(grad, fj, bj, -gs)
                         _add_affine_block(hess, n_size, matrix_base, fj - start, bj, fj - start, bj, hs)
                         _add_affine_block(hess, n_size, matrix_base, fi - start, bi, fj - start, bj, -hs)
@@ -957,7 +992,7 @@ def _final_forces(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, o
         moved = _motion_bound(bd, st, tm, o, cols)
         st.moved[o] = moved
         for s in range(bd.radius.shape[1]):
-            sphere_x[o, s] = sphere_position(tm, bd.rest, bd.b, o, s, cols)
+            sphere_x[o, s] = _sphere_x(bd, tm, o, s, cols)
             scene_force[o, s] = zero
             scene_normal[o, s] = zero
             if st.margin[o, s] <= moved * bd.b_norm[o, s]:
@@ -1038,7 +1073,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
                 st.tm_pred[o, r, a] = ss.tm_now[o, r, a] + h * ss.tmdot[o, r, a]
         k = ss.scene_stiffness[o]
         for s in range(bd.radius.shape[1]):
-            x = sphere_position(ss.tm_now, bd.rest, bd.b, o, s, cols)
+            x = _sphere_x(bd, ss.tm_now, o, s, cols)
             sdf, n = _scene_distance(sc, x)
             valid = wp.float64(ss.valid[o, s])
             depth = wp.max(bd.radius[o, s] - sdf, _ZERO) * valid
@@ -1279,6 +1314,10 @@ class FusedNewton:
         bd = Bodies()
         for key, value in self._keep.items():
             setattr(bd, key, _wp(value, wp.vec3d if key == "rest" else None))
+        b = self._keep["b"]
+        if b.shape[2] % 4:
+            raise ValueError(f"basis rows of {b.shape[2]} columns: the kernels read them four at a time (4 per handle)")
+        bd.b4 = _wp(b.view(b.shape[0], b.shape[1], b.shape[2] // 4, 4), wp.vec4d)
         self._keep.update({key: value.contiguous() for key, value in substep_constants.items()})
         bd.mass_separable = int(_mass_separable(model))
         self.bodies = bd

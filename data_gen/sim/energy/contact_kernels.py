@@ -181,13 +181,41 @@ def scene_sphere_terms(
     ``active`` is 0 (and the rest zero) for a padded sphere or one that neither penetrates nor carries a
     frozen normal force."""
     k = stiffness[o, s]
+    if k == _ZERO:
+        return 0, _ZERO, wp.vec3d(_ZERO, _ZERO, _ZERO), wp.mat33d(), wp.vec3d(_ZERO, _ZERO, _ZERO)
+    x = sphere_position(tm, rest, b, o, s, cols)
+    return scene_contact_terms(
+        x, k, radius, friction_scale, start_x, start_normal, smoothing_m, has_ground, box_centers, box_rotations,
+        box_half_extents, far_m, has_points, grid, static_points, point_radius_m, point_search_m, o, s,
+    )  # fmt: skip
+
+
+@wp.func
+def scene_contact_terms(
+    x: wp.vec3d,
+    k: wp.float64,
+    radius: wp.array2d(dtype=wp.float64),
+    friction_scale: wp.array2d(dtype=wp.float64),
+    start_x: wp.array2d(dtype=wp.vec3d),
+    start_normal: wp.array2d(dtype=wp.vec3d),
+    smoothing_m: wp.float64,
+    has_ground: int,
+    box_centers: wp.array(dtype=wp.vec3d),
+    box_rotations: wp.array(dtype=wp.mat33d),
+    box_half_extents: wp.array(dtype=wp.vec3d),
+    far_m: wp.float64,
+    has_points: int,
+    grid: wp.uint64,
+    static_points: wp.array(dtype=wp.vec3d),
+    point_radius_m: wp.float64,
+    point_search_m: wp.float64,
+    o: int,
+    s: int,
+):
+    """:func:`scene_sphere_terms` of sphere (o, s) at ``x`` (m) with stiffness ``k`` != 0 (N/m)."""
     e = _ZERO
     g = wp.vec3d(_ZERO, _ZERO, _ZERO)
     h = wp.mat33d()
-    n = wp.vec3d(_ZERO, _ZERO, _ZERO)
-    if k == _ZERO:
-        return 0, e, g, h, n
-    x = sphere_position(tm, rest, b, o, s, cols)
     sdf, n = boxes_distance(x, has_ground, box_centers, box_rotations, box_half_extents, far_m)
     if has_points != 0:
         sdf, n = points_distance(grid, x, static_points, point_radius_m, point_search_m, sdf, n)
@@ -225,6 +253,23 @@ def pair_terms(
     xj = frozen_x_j
     if oj >= 0:
         xj = sphere_position(tm, rest, b, oj, sj, cols_j)
+    return pair_contact_terms(xi, xj, stiffness, radius_sum, mu_lam, normal0, x0_i, x0_j, smoothing_m)
+
+
+@wp.func
+def pair_contact_terms(
+    xi: wp.vec3d,
+    xj: wp.vec3d,
+    stiffness: wp.float64,
+    radius_sum: wp.float64,
+    mu_lam: wp.float64,
+    normal0: wp.vec3d,
+    x0_i: wp.vec3d,
+    x0_j: wp.vec3d,
+    smoothing_m: wp.float64,
+):
+    """:func:`pair_terms` of two spheres at ``xi`` / ``xj`` (m): (active, energy J, dE/dx_i N, Hessian N/m, unit
+    normal j -> i)."""
     delta = xi - xj
     dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
     n = delta / dist
