@@ -54,6 +54,7 @@ from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.scenario import Scenario
 from data_gen.sim.contact_points import SurfaceSamples
+from data_gen.sim.energy_rise import MAX_ENERGY_RISE_FRACTION, largest_energy_rise, total_energy_j
 from data_gen.sim.material import Material
 from data_gen.sim.overlap import MAX_OVERLAP_FRACTION, deepest_overlap
 from data_gen.sim.presets import QualityPreset
@@ -231,7 +232,9 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
 def check_simulation(result: SimulationResult, materials: list[Material]) -> None:
     """Reject a simulation whose labels would be wrong: non-finite positions, an object below the ground
     (tunnelling), two objects sunk into each other (contact spheres overlapping by more than
-    ``MAX_OVERLAP_FRACTION`` of their radii's sum: a contact the solver missed) or inverted material
+    ``MAX_OVERLAP_FRACTION`` of their radii's sum: a contact the solver missed), energy gained from nowhere (the
+    recorded total rising by more than ``MAX_ENERGY_RISE_FRACTION`` of its offset-free scale,
+    :mod:`data_gen.sim.energy_rise`: a missed contact pushed out later) or inverted material
     (det F <= 0: a soft object crushed past what the reduced model represents, e.g. E = 1 kPa hit by a heavy
     block).  Raises :class:`SequenceRejected` naming it."""
     for track, material in zip(result.objects, materials):
@@ -249,6 +252,16 @@ def check_simulation(result: SimulationResult, materials: list[Material]) -> Non
         raise SequenceRejected(
             "interpenetration", f"objects {a} and {c} overlap by {1e3 * overlap.depth_m:.1f} mm at frame {overlap.frame} "
             f"({overlap.fraction:.2f} of their contact spheres' radii; at most {MAX_OVERLAP_FRACTION})"
+        )
+    rise = largest_energy_rise(
+        total_energy_j(result.energies_j), [float(t.masses_kg.sum()) for t in tracks],
+        [float(np.ptp(t.contact_points_rest_m, axis=0).max()) for t in tracks], float(np.linalg.norm(result.gravity_m_s2)),
+    )  # fmt: skip
+    if rise.fraction > MAX_ENERGY_RISE_FRACTION:
+        raise SequenceRejected(
+            "energy_gain", f"the total energy rose by {rise.rise_j:.3g} J above its lowest value by frame {rise.frame} "
+            f"({rise.fraction:.3g} of the run's scale {rise.scale_j:.3g} J; at most {MAX_ENERGY_RISE_FRACTION}): "
+            "a contact resolved too late"
         )
     for track, material in zip(result.objects, materials):
         det_min = float(track.det_f.min())
