@@ -45,7 +45,6 @@ from data_gen.sim.energy.contact_kernels import (
     sphere_position,
 )
 from data_gen.sim.energy.elastic_kernel import (
-    deformation_gradient,
     mat99d,
     neo_hookean_point,
     not_positive_definite,
@@ -106,10 +105,12 @@ class Bodies:
     flat_index: wp.array2d(dtype=wp.int32)  # (n, 3K) position in the flat island vectors
     island_size: int
     mass_matrix: wp.array3d(dtype=wp.float64)  # (n, 3K, 3K)
+    mass_matrix4: wp.array3d(dtype=wp.vec4d)  # (n, 3K, 3K / 4) the same, four columns at a time
     mass_separable: int  # 1: every mass matrix is kron(I3, M_b) (its blocks coupling rows r != s are zero)
     identity_c: wp.array(dtype=wp.int32)  # (n,) 1: one cubature point with C = [I; 0] (a one-handle object)
     mass_b_sum: wp.array2d(dtype=wp.float64)  # (n, K) kg
     cub_c: wp.array4d(dtype=wp.float64)  # (n, P, K, 3)
+    cub_c3: wp.array3d(dtype=wp.vec3d)  # (n, P, K) the same, one row C[a, :] at a time
     cub_volume: wp.array2d(dtype=wp.float64)  # (n, P) m^3
     mu_pa: wp.array(dtype=wp.float64)
     lam_pa: wp.array(dtype=wp.float64)
@@ -131,6 +132,7 @@ class StepData:
     :class:`data_gen.sim.energy.contact_kernels.WarpContact` after ``prepare``)."""
 
     tm_pred: wp.array3d(dtype=wp.float64)  # (n, 3, K)
+    tm_pred4: wp.array3d(dtype=wp.vec4d)  # (n, 3, K / 4) the same, four columns at a time
     tm_start: wp.array3d(dtype=wp.float64)  # (n, 3, K) the states at the start of the step
     margin: wp.array2d(dtype=wp.float64)  # (n, S) scratch: start distance to the scene minus radius, m
     pair_gap: wp.array(dtype=wp.float64)  # (pairs,) sub-step start gap (centre distance - radius sum), m; -1 outside
@@ -168,8 +170,10 @@ class Work:
     q: wp.array(dtype=wp.float64)  # the island states: start, then result
     trial_q: wp.array(dtype=wp.float64)  # the line search's trial point
     tm: wp.array3d(dtype=wp.float64)  # (n, 3, K) padded states of the point being evaluated
+    tm4: wp.array3d(dtype=wp.vec4d)  # (n, 3, K / 4) the same, four columns at a time
     grad: wp.array(dtype=wp.float64)
     hess: wp.array(dtype=wp.float64)
+    hess4: wp.array(dtype=wp.vec4d)  # ``hess`` four entries at a time (an island's rows and objects' columns are aligned)
     chol: wp.array(dtype=wp.float64)  # the envelope Cholesky factor
     dq: wp.array(dtype=wp.float64)  # the Newton update
     chol4: wp.array(dtype=wp.vec4d)  # ``chol`` read four entries at a time (see _subtract_products)
@@ -371,17 +375,46 @@ def _add_affine_elastic(grad: wp.array(dtype=wp.float64), hess: wp.array(dtype=w
 
 
 @wp.func
-def _add_elastic_gradient(grad: wp.array(dtype=wp.float64), flat_index: wp.array2d(dtype=wp.int32),
-                          cub_c: wp.array4d(dtype=wp.float64), o: int, i: int, cols: int, kp: int, w: wp.float64,
-                          piola: wp.mat33d):  # fmt: skip
+def _deformation_gradient(bd: Bodies, tm4: wp.array3d(dtype=wp.vec4d), o: int, i: int, cols: int):
+    """:func:`data_gen.sim.energy.elastic_kernel.deformation_gradient` of cubature point i of object o at the
+    states ``tm4`` (``Work.tm`` four columns at a time): the same sums in the same order, with a quarter of the
+    array reads (warp's indexing, not the arithmetic, is what it costs)."""
+    f = wp.identity(n=3, dtype=wp.float64)
+    for a4 in range(cols // 4):
+        t0 = tm4[o, 0, a4]
+        t1 = tm4[o, 1, a4]
+        t2 = tm4[o, 2, a4]
+        for k in range(4):
+            c = bd.cub_c3[o, i, 4 * a4 + k]
+            t = t0[k]
+            f[0, 0] = f[0, 0] + t * c[0]
+            f[0, 1] = f[0, 1] + t * c[1]
+            f[0, 2] = f[0, 2] + t * c[2]
+            t = t1[k]
+            f[1, 0] = f[1, 0] + t * c[0]
+            f[1, 1] = f[1, 1] + t * c[1]
+            f[1, 2] = f[1, 2] + t * c[2]
+            t = t2[k]
+            f[2, 0] = f[2, 0] + t * c[0]
+            f[2, 1] = f[2, 1] + t * c[1]
+            f[2, 2] = f[2, 2] + t * c[2]
+    return f
+
+
+@wp.func
+def _add_point_gradient(grad: wp.array(dtype=wp.float64), first: int, cub_c3: wp.array3d(dtype=wp.vec3d), o: int,
+                        i: int, cols: int, w: wp.float64, piola: wp.mat33d):  # fmt: skip
     """Cubature point i of object o: its elastic gradient ``w P C_i^T`` (entry (r, a): ``w sum_j P[r, j] C[a, j]``)
-    added to the object's unknowns."""
-    for r in range(3):
-        for a in range(cols):
-            fr = flat_index[o, r * kp + a]
+    added to the object's unknowns, contiguous from ``first`` (entry (r, a) at ``first + r cols + a``), each row
+    C[a, :] read once."""
+    for a in range(cols):
+        c = cub_c3[o, i, a]
+        for r in range(3):
             g_ra = _ZERO
-            for j in range(3):
-                g_ra = g_ra + piola[r, j] * cub_c[o, i, a, j]
+            g_ra = g_ra + piola[r, 0] * c[0]
+            g_ra = g_ra + piola[r, 1] * c[1]
+            g_ra = g_ra + piola[r, 2] * c[2]
+            fr = first + r * cols + a
             grad[fr] = grad[fr] + w * g_ra
 
 
@@ -400,18 +433,19 @@ def _add_affine_gradient(grad: wp.array(dtype=wp.float64), first: int, bo: wp.ve
 
 
 @wp.func
-def _add_affine_block(hess: wp.array(dtype=wp.float64), n_size: int, base: int, first_o: int, bo: wp.vec4d,
+def _add_affine_block(hess4: wp.array(dtype=wp.vec4d), n_size: int, base: int, first_o: int, bo: wp.vec4d,
                       first_p: int, bp: wp.vec4d, h: wp.mat33d):  # fmt: skip
     """hess[(r, a), (c, e)] += h[r, c] bo[a] bp[e] for the rows of one one-handle object and the columns of
     another (island-local offsets ``first_o`` / ``first_p`` of the matrix at ``base``): direct addressing, no
-    index tables."""
+    index tables; each (r, a, c) adds its four entries e through ``hess4`` (the same matrix: every index here is
+    a multiple of 4), the same operations as one entry at a time."""
     for r in range(3):
         for a in range(4):
-            row = base + (first_o + 4 * r + a) * n_size + first_p
+            row4 = (base + (first_o + 4 * r + a) * n_size + first_p) // 4
             for c in range(3):
                 w = h[r, c] * bo[a]
-                for e in range(4):
-                    hess[row + 4 * c + e] = hess[row + 4 * c + e] + w * bp[e]
+                v = hess4[row4 + c]
+                hess4[row4 + c] = wp.vec4d(v[0] + w * bp[0], v[1] + w * bp[1], v[2] + w * bp[2], v[3] + w * bp[3])
 
 
 @wp.func
@@ -425,6 +459,8 @@ def _evaluate(
     grad: wp.array(dtype=wp.float64),
     hess: wp.array(dtype=wp.float64),
     band: wp.array2d(dtype=wp.int32),
+    hess4: wp.array(dtype=wp.vec4d),
+    tm4: wp.array3d(dtype=wp.vec4d),
 ):
     """Objective of island ``isl`` at the states ``tm`` (J); with ``derivatives`` its gradient and Newton
     matrix are written into the island's part of ``grad`` / ``hess`` (elastic blocks failing the near-SPD
@@ -449,9 +485,11 @@ def _evaluate(
             o = bd.island_objects[slot]
             first_dof = bd.flat_index[o, 0] - start
             end_dof = first_dof + 3 * bd.columns[o]
+            quads = (band[o, 1] - band[o, 0]) // 4  # object bands start and end at multiples of 4
             for r in range(first_dof, end_dof):
-                for c in range(band[o, 0], band[o, 1]):
-                    hess[base + r * n_size + c] = _ZERO
+                row4 = (base + r * n_size + band[o, 0]) // 4
+                for t in range(quads):
+                    hess4[row4 + t] = wp.vec4d(_ZERO, _ZERO, _ZERO, _ZERO)
             band[o, 0] = first_dof
             band[o, 1] = end_dof
         if derivatives == 1:
@@ -469,10 +507,16 @@ def _evaluate(
             for a in range(cols):
                 row = r * kp + a
                 m_d = _ZERO
-                for s in range(s_lo, s_hi):
-                    for c in range(cols):
-                        col = s * kp + c
-                        m_d = m_d + bd.mass_matrix[o, row, col] * (tm[o, s, c] - st.tm_pred[o, s, c])
+                for s in range(s_lo, s_hi):  # four columns at a time (cols and kp are multiples of 4), in order
+                    col4 = (s * kp) // 4
+                    for c4 in range(cols // 4):
+                        mm = bd.mass_matrix4[o, row, col4 + c4]
+                        t4 = tm4[o, s, c4]
+                        p4 = st.tm_pred4[o, s, c4]
+                        m_d = m_d + mm[0] * (t4[0] - p4[0])
+                        m_d = m_d + mm[1] * (t4[1] - p4[1])
+                        m_d = m_d + mm[2] * (t4[2] - p4[2])
+                        m_d = m_d + mm[3] * (t4[3] - p4[3])
                 value = value + wp.float64(0.5) * (tm[o, r, a] - st.tm_pred[o, r, a]) * m_d
                 value = value - h2 * st.gravity[r] * tm[o, r, a] * bd.mass_b_sum[o, a]
                 if derivatives != 0:
@@ -488,11 +532,11 @@ def _evaluate(
         for i in range(bd.cub_volume.shape[1]):
             v = bd.cub_volume[o, i]
             if v != _ZERO:
-                f = deformation_gradient(tm, bd.cub_c, o, i, cols)
+                f = _deformation_gradient(bd, tm4, o, i, cols)
                 psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], wp.where(derivatives == 1, 1, 0))
                 value = value + h2 * v * psi
                 if derivatives == CONTACT_MATRIX_ONLY:  # the elastic gradient only
-                    _add_elastic_gradient(grad, bd.flat_index, bd.cub_c, o, i, cols, kp, h2 * v, piola)
+                    _add_point_gradient(grad, bd.flat_index[o, 0], bd.cub_c3, o, i, cols, h2 * v, piola)
                 if derivatives == 1:
                     if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:  # as StepObjective: projected
                         flagged = int(1)
@@ -501,7 +545,7 @@ def _evaluate(
                     if bd.identity_c[o] != 0:  # C = [I; 0]: the sums below reduce to P and H themselves
                         _add_affine_elastic(grad, hess, n_size, isl, bd.flat_index[o, 0], w, piola, h9)
                         continue
-                    _add_elastic_gradient(grad, bd.flat_index, bd.cub_c, o, i, cols, kp, w, piola)
+                    _add_point_gradient(grad, bd.flat_index[o, 0], bd.cub_c3, o, i, cols, w, piola)
                     for r in range(3):
                         for a in range(cols):
                             fr = bd.flat_index[o, r * kp + a]
@@ -530,7 +574,7 @@ def _evaluate(
                         bo = _affine_row(bd.b4, o, s)
                         _add_affine_gradient(grad, first_o, bo, h2 * g)
                         local = first_o - start
-                        _add_affine_block(hess, n_size, matrix_base, local, bo, local, bo, h2 * h)
+                        _add_affine_block(hess4, n_size, matrix_base, local, bo, local, bo, h2 * h)
                     else:
                         add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
                         add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, h2 * h)
@@ -549,14 +593,14 @@ def _evaluate(
                     fi = bd.flat_index[oi, 0]
                     bi = _affine_row(bd.b4, oi, si)
                     _add_affine_gradient(grad, fi, bi, gs)
-                    _add_affine_block(hess, n_size, matrix_base, fi - start, bi, fi - start, bi, hs)
+                    _add_affine_block(hess4, n_size, matrix_base, fi - start, bi, fi - start, bi, hs)
                     if oj >= 0:
                         fj = bd.flat_index[oj, 0]
                         bj = _affine_row(bd.b4, oj, sj)
                         _add_affine_gradient(grad, fj, bj, -gs)
-                        _add_affine_block(hess, n_size, matrix_base, fj - start, bj, fj - start, bj, hs)
-                        _add_affine_block(hess, n_size, matrix_base, fi - start, bi, fj - start, bj, -hs)
-                        _add_affine_block(hess, n_size, matrix_base, fj - start, bj, fi - start, bi, -hs)
+                        _add_affine_block(hess4, n_size, matrix_base, fj - start, bj, fj - start, bj, hs)
+                        _add_affine_block(hess4, n_size, matrix_base, fi - start, bi, fj - start, bj, -hs)
+                        _add_affine_block(hess4, n_size, matrix_base, fj - start, bj, fi - start, bi, -hs)
                 else:
                     add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
                                          h2 * g, h2 * h)  # fmt: skip
@@ -780,7 +824,7 @@ def _take_update(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, th
             stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
         else:
             stats[isl, EVALUATIONS] += 1
-        trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band)
+        trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band, wk.hess4, wk.tm4)
         ok = int(0)
         if t < line_search_steps:
             if trial <= value + wp.float64(ARMIJO_C) * alpha * slope + wp.float64(1e-14) * wp.abs(value):
@@ -825,7 +869,7 @@ def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp
     for it in range(iterations):
         if have == 0:
             _load_state(bd, q, tm, isl)
-            value, flagged = _evaluate(bd, sc, st, tm, isl, 1, grad, hess, band)
+            value, flagged = _evaluate(bd, sc, st, tm, isl, 1, grad, hess, band, wk.hess4, wk.tm4)
             stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
         finite = int(1)
         biggest = _ZERO
@@ -900,7 +944,7 @@ def evaluate_islands_kernel(
     isl = wp.tid()
     _scene_margins(bd, sc, st, isl)
     _load_state(bd, wk.q, wk.tm, isl)
-    v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band)
+    v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4)
     value[isl] = v
     flagged[isl] = f
 
@@ -949,7 +993,7 @@ def update_islands_kernel(
         return
     if outcome == NEED_DERIVATIVES:
         _load_state(bd, wk.q, wk.tm, isl)
-        v, flagged = _evaluate(bd, sc, st, wk.tm, isl, CONTACT_MATRIX_ONLY, wk.grad, wk.hess, wk.band)
+        v, flagged = _evaluate(bd, sc, st, wk.tm, isl, CONTACT_MATRIX_ONLY, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4)
         wk.stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
     value[isl] = v
     finite = int(1)
@@ -1280,6 +1324,14 @@ def _mass_separable(model: Model) -> bool:
     return bool((blocks[off] == 0).all())
 
 
+def _quads(t: torch.Tensor) -> torch.Tensor:
+    """A contiguous tensor whose last dimension is a multiple of 4, viewed as (..., last / 4, 4): the memory the
+    kernels read four entries at a time (``wp.vec4d``)."""
+    if t.shape[-1] % 4:
+        raise ValueError(f"last dimension {t.shape[-1]} is not a multiple of 4 (4 columns per handle)")
+    return t.view(*t.shape[:-1], t.shape[-1] // 4, 4)
+
+
 def _wp(t: torch.Tensor, dtype=None) -> wp.array:
     return wp.from_torch(t.contiguous(), dtype=dtype)
 
@@ -1317,7 +1369,9 @@ class FusedNewton:
         b = self._keep["b"]
         if b.shape[2] % 4:
             raise ValueError(f"basis rows of {b.shape[2]} columns: the kernels read them four at a time (4 per handle)")
-        bd.b4 = _wp(b.view(b.shape[0], b.shape[1], b.shape[2] // 4, 4), wp.vec4d)
+        bd.b4 = _wp(_quads(b), wp.vec4d)
+        bd.mass_matrix4 = _wp(_quads(self._keep["mass_matrix"]), wp.vec4d)
+        bd.cub_c3 = _wp(self._keep["cub_c"], wp.vec3d)
         self._keep.update({key: value.contiguous() for key, value in substep_constants.items()})
         bd.mass_separable = int(_mass_separable(model))
         self.bodies = bd
@@ -1353,6 +1407,7 @@ class FusedNewton:
         )
         self.work = Work()
         self.work.tm, self.work.band = _wp(self.tm), _wp(self.band)
+        self.work.tm4 = _wp(_quads(self.tm), wp.vec4d)
         self._step = StepData()
         self.smoothing = torch.zeros(n, **like)  # friction smoothing (m) per object
         self._step.smoothing_m = _wp(self.smoothing)
@@ -1408,7 +1463,7 @@ class FusedNewton:
             arrays[name] for name in ("q", "trial_q", "grad", "hess", "chol", "dq")
         )
         wk.first, wk.stats = arrays["first"], arrays["stats"]
-        wk.chol4, wk.dq4 = arrays["chol4"], arrays["dq4"]
+        wk.chol4, wk.dq4, wk.hess4 = arrays["chol4"], arrays["dq4"], arrays["hess4"]
         self._limits = [arrays["threshold"], arrays["trust"]]
         self._bound_launches.clear()  # solve_split's launch holds the limits' arrays (packed by value)
         st = self._step
@@ -1446,7 +1501,9 @@ class FusedNewton:
             raise ValueError(f"island size {size}: the kernels read the factor four entries at a time and need a multiple "
                              "of 4 (every object has 12 unknowns per handle)")
         views = {name: _wp(tensor) for name, tensor in scratch.items()}
-        views["chol4"], views["dq4"] = (_wp(scratch[name].view(-1, 4), wp.vec4d) for name in ("chol", "dq"))
+        views["chol4"], views["dq4"], views["hess4"] = (
+            _wp(scratch[name].view(-1, 4), wp.vec4d) for name in ("chol", "dq", "hess")
+        )
         entry = (scratch, views)
         self._island_scratch[key] = entry
         while len(self._island_scratch) > _SCRATCH_SHAPES:
@@ -1475,6 +1532,7 @@ class FusedNewton:
             st.stiffness, st.friction_scale = _wp(c.stiffness), _wp(c.friction_scale)
             st.start_x, st.start_normal = _wp(c.start_x, wp.vec3d), _wp(c.start_normals, wp.vec3d)
             st.tm_pred, st.tm_start, st.margin = _wp(self.tm_pred), _wp(self.tm_start), _wp(self.margin)
+            st.tm_pred4 = _wp(_quads(self.tm_pred), wp.vec4d)
             st.obj_i, st.sph_i, st.obj_j, st.sph_j = (_wp(t) for t in c_ints)
             st.frozen_x_j, st.normal0, st.x0_i, st.x0_j = (_wp(t, wp.vec3d) for t in c_vec)
             st.pair_stiffness, st.radius_sum, st.pair_friction_scale = (_wp(t) for t in c_scal)
