@@ -37,9 +37,6 @@ import warp as wp
 
 from data_gen.sim.energy.contact_kernels import (
     WarpContact,
-    add_block,
-    add_gradient,
-    add_pair_derivatives,
     pair_contact_terms,
     scene_contact_terms,
     sphere_position,
@@ -449,6 +446,51 @@ def _add_affine_block(hess4: wp.array(dtype=wp.vec4d), n_size: int, base: int, f
 
 
 @wp.func
+def _add_gradient_direct(grad: wp.array(dtype=wp.float64), first: int, b: wp.array3d(dtype=wp.float64), o: int,
+                         s: int, cols: int, g: wp.vec3d):  # fmt: skip
+    """:func:`data_gen.sim.energy.contact_kernels.add_gradient` of sphere (o, s), the object's unknowns contiguous
+    from ``first`` (entry (r, a) at ``first + r cols + a``): no index table."""
+    for a in range(cols):
+        ba = b[o, s, a]
+        if ba != _ZERO:
+            for r in range(3):
+                fr = first + r * cols + a
+                grad[fr] = grad[fr] + g[r] * ba
+
+
+@wp.func
+def _plus_nonzero(v: wp.float64, h: wp.float64, w: wp.float64):
+    """``v + h w``, or ``v`` untouched where ``w`` is zero (as ``contact_kernels.add_block`` skips those entries)."""
+    return wp.where(w != _ZERO, v + h * w, v)
+
+
+@wp.func
+def _add_block4(hess4: wp.array(dtype=wp.vec4d), n_size: int, matrix_base: int, b: wp.array3d(dtype=wp.float64),
+                b4: wp.array3d(dtype=wp.vec4d), o: int, s: int, cols: int, first_o: int, p: int, t: int, cols_p: int,
+                first_p: int, h: wp.mat33d):  # fmt: skip
+    """:func:`data_gen.sim.energy.contact_kernels.add_block` (rows of sphere (o, s), columns of sphere (p, t); the
+    objects' island-local first unknowns ``first_o`` / ``first_p``) through ``hess4``: each (a, r, c) adds its
+    ``cols_p`` entries four at a time (every index here is a multiple of 4), each entry the same ``h[r, c] w`` and
+    none where ``w`` is zero."""
+    quads = cols_p // 4
+    for a in range(cols):
+        ba = b[o, s, a]
+        if ba != _ZERO:
+            for e4 in range(quads):
+                bp = b4[p, t, e4]
+                w = wp.vec4d(ba * bp[0], ba * bp[1], ba * bp[2], ba * bp[3])
+                if w[0] != _ZERO or w[1] != _ZERO or w[2] != _ZERO or w[3] != _ZERO:
+                    for r in range(3):
+                        row4 = (matrix_base + (first_o + r * cols + a) * n_size + first_p) // 4 + e4
+                        for c in range(3):
+                            hrc = h[r, c]
+                            q = row4 + c * quads
+                            v = hess4[q]
+                            hess4[q] = wp.vec4d(_plus_nonzero(v[0], hrc, w[0]), _plus_nonzero(v[1], hrc, w[1]),
+                                                _plus_nonzero(v[2], hrc, w[2]), _plus_nonzero(v[3], hrc, w[3]))  # fmt: skip
+
+
+@wp.func
 def _evaluate(
     bd: Bodies,
     sc: SceneArgs,
@@ -576,8 +618,10 @@ def _evaluate(
                         local = first_o - start
                         _add_affine_block(hess4, n_size, matrix_base, local, bo, local, bo, h2 * h)
                     else:
-                        add_gradient(grad, bd.flat_index, bd.b, o, s, cols, kp, h2 * g)
-                        add_block(hess, bd.flat_index, n_size, bd.b, o, s, cols, o, s, cols, h2 * h)
+                        first_o = bd.flat_index[o, 0]
+                        _add_gradient_direct(grad, first_o, bd.b, o, s, cols, h2 * g)
+                        local = first_o - start
+                        _add_block4(hess4, n_size, matrix_base, bd.b, bd.b4, o, s, cols, local, o, s, cols, local, h2 * h)
     # pair contact + friction of the island's candidate pairs (side i on one of its objects) that may touch
     for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
         p = st.live_order[k]
@@ -601,9 +645,20 @@ def _evaluate(
                         _add_affine_block(hess4, n_size, matrix_base, fj - start, bj, fj - start, bj, hs)
                         _add_affine_block(hess4, n_size, matrix_base, fi - start, bi, fj - start, bj, -hs)
                         _add_affine_block(hess4, n_size, matrix_base, fj - start, bj, fi - start, bi, -hs)
-                else:
-                    add_pair_derivatives(grad, hess, bd.flat_index, n_size, bd.b, oi, si, cols_i, oj, sj, cols_j,
-                                         h2 * g, h2 * h)  # fmt: skip
+                else:  # as add_pair_derivatives
+                    gs = h2 * g
+                    hs = h2 * h
+                    fi = bd.flat_index[oi, 0]
+                    _add_gradient_direct(grad, fi, bd.b, oi, si, cols_i, gs)
+                    li = fi - start
+                    _add_block4(hess4, n_size, matrix_base, bd.b, bd.b4, oi, si, cols_i, li, oi, si, cols_i, li, hs)
+                    if oj >= 0:
+                        fj = bd.flat_index[oj, 0]
+                        _add_gradient_direct(grad, fj, bd.b, oj, sj, cols_j, -gs)
+                        lj = fj - start
+                        _add_block4(hess4, n_size, matrix_base, bd.b, bd.b4, oj, sj, cols_j, lj, oj, sj, cols_j, lj, hs)
+                        _add_block4(hess4, n_size, matrix_base, bd.b, bd.b4, oi, si, cols_i, li, oj, sj, cols_j, lj, -hs)
+                        _add_block4(hess4, n_size, matrix_base, bd.b, bd.b4, oj, sj, cols_j, lj, oi, si, cols_i, li, -hs)
                 if oj >= 0:  # the cross blocks widen both objects' bands
                     first_i = bd.flat_index[oi, 0] - start
                     first_j = bd.flat_index[oj, 0] - start
