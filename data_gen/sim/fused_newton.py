@@ -1154,6 +1154,21 @@ def sphere_velocity(tmdot: wp.array3d(dtype=wp.float64), b: wp.array3d(dtype=wp.
 
 
 @wp.func
+def _sphere_v(bd: Bodies, tmdot: wp.array3d(dtype=wp.float64), o: int, s: int, cols: int):
+    """:func:`sphere_velocity` of sphere (o, s) (m/s), a one-handle object's four columns unrolled as in
+    :func:`_sphere_x` (the same products and sums in the same order)."""
+    if cols != 4:
+        return sphere_velocity(tmdot, bd.b, o, s, cols)
+    bo = bd.b4[o, s, 0]
+    v = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    v = v + bo[0] * wp.vec3d(tmdot[o, 0, 0], tmdot[o, 1, 0], tmdot[o, 2, 0])
+    v = v + bo[1] * wp.vec3d(tmdot[o, 0, 1], tmdot[o, 1, 1], tmdot[o, 2, 1])
+    v = v + bo[2] * wp.vec3d(tmdot[o, 0, 2], tmdot[o, 1, 2], tmdot[o, 2, 2])
+    v = v + bo[3] * wp.vec3d(tmdot[o, 0, 3], tmdot[o, 1, 3], tmdot[o, 2, 3])
+    return v
+
+
+@wp.func
 def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: int):
     """The start data of island ``isl``'s next sub-step from the current states ``ss.tm_now``, as
     ``StepObjective`` (``contact_start``) and the solver (the pairs' frozen normal forces) compute it: start
@@ -1179,7 +1194,7 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             stiffness = k * valid
             friction_scale = ss.friction[o] * (k * depth)
             st.start_x[o, s] = x
-            st.start_speed[o, s] = wp.length(sphere_velocity(ss.tmdot, bd.b, o, s, cols))
+            st.start_speed[o, s] = wp.length(_sphere_v(bd, ss.tmdot, o, s, cols))
             st.start_normal[o, s] = n
             st.stiffness[o, s] = stiffness
             st.friction_scale[o, s] = friction_scale
