@@ -296,10 +296,10 @@ def _make(name: str, change: str) -> None:
             qid = vs.COUNTERFACTUAL_PREFIX + r["question_id"]
             record = derive(
                 r, name, question_id=qid, question=cf_text(q, r, view, premise_text), correct=answer,
-                distractors=distractors, value=round(cf, 4), unit=q.unit,
+                distractors=distractors, value=float(cf), unit=q.unit,  # unrounded: the answer text is fmt(value)
                 objects=list(dict.fromkeys([*asked, *([] if target is None else [target])])),
                 meta={**r["meta"], "counterfactual": {"change": change, "amount": amount, "object": target,
-                                                      "factual_value": round(factual, 4),
+                                                      "factual_value": float(factual),
                                                       "relative_change": round(rel, 4) if np.isfinite(rel) else None}},
                 order_key=seed_of(inputs.seed, r["pair"], name),
             )  # fmt: skip
