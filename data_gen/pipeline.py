@@ -54,7 +54,7 @@ from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.scenario import Scenario
 from data_gen.sim.contact_points import SurfaceSamples
-from data_gen.sim.energy_rise import MAX_ENERGY_RISE_FRACTION, largest_energy_rise, total_energy_j
+from data_gen.sim.energy_rise import MAX_ENERGY_RISE_FRACTION, run_energy_rise
 from data_gen.sim.material import Material
 from data_gen.sim.overlap import MAX_OVERLAP_FRACTION, deepest_overlap
 from data_gen.sim.presets import QualityPreset
@@ -253,10 +253,7 @@ def check_simulation(result: SimulationResult, materials: list[Material]) -> Non
             "interpenetration", f"objects {a} and {c} overlap by {1e3 * overlap.depth_m:.1f} mm at frame {overlap.frame} "
             f"({overlap.fraction:.2f} of their contact spheres' radii; at most {MAX_OVERLAP_FRACTION})"
         )
-    rise = largest_energy_rise(
-        total_energy_j(result.energies_j), [float(t.masses_kg.sum()) for t in tracks],
-        [float(np.ptp(t.contact_points_rest_m, axis=0).max()) for t in tracks], float(np.linalg.norm(result.gravity_m_s2)),
-    )  # fmt: skip
+    rise = run_energy_rise(result)
     if rise.fraction > MAX_ENERGY_RISE_FRACTION:
         raise SequenceRejected(
             "energy_gain", f"the total energy rose by {rise.rise_j:.3g} J above its lowest value by frame {rise.frame} "

@@ -17,9 +17,12 @@ of its contact spheres), the energy of lifting each object by its own size.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from data_gen.sim.recording import SimulationResult
 
 # The recorded energies (J per frame) whose sum is the run's total: SimulationResult.energies_j's keys.
 ENERGY_TERMS = ("kinetic", "elastic", "contact", "gravity")
@@ -79,3 +82,13 @@ def largest_energy_rise(total_j: np.ndarray, masses_kg: Sequence[float], sizes_m
     released = float(total[0] - total.min())
     scale = max(released, weight_size_j(masses_kg, sizes_m, gravity_m_s2))
     return EnergyRise(float(above[frame]), frame, scale)
+
+
+def run_energy_rise(result: SimulationResult) -> EnergyRise:
+    """:func:`largest_energy_rise` of a recorded run: its total energy, each object's mass and size (the largest
+    extent of its contact spheres' rest centres) and its gravity."""
+    tracks = result.objects
+    return largest_energy_rise(
+        total_energy_j(result.energies_j), [float(t.masses_kg.sum()) for t in tracks],
+        [float(np.ptp(t.contact_points_rest_m, axis=0).max()) for t in tracks], float(np.linalg.norm(result.gravity_m_s2)),
+    )  # fmt: skip

@@ -1436,10 +1436,7 @@ class FusedNewton:
         bd = Bodies()
         for key, value in self._keep.items():
             setattr(bd, key, _wp(value, wp.vec3d if key == "rest" else None))
-        b = self._keep["b"]
-        if b.shape[2] % 4:
-            raise ValueError(f"basis rows of {b.shape[2]} columns: the kernels read them four at a time (4 per handle)")
-        bd.b4 = _wp(_quads(b), wp.vec4d)
+        bd.b4 = _wp(_quads(self._keep["b"]), wp.vec4d)
         bd.mass_matrix4 = _wp(_quads(self._keep["mass_matrix"]), wp.vec4d)
         bd.cub_c3 = _wp(self._keep["cub_c"], wp.vec3d)
         self._keep.update({key: value.contiguous() for key, value in substep_constants.items()})

@@ -9,7 +9,13 @@ import torch
 
 from data_gen.pipeline import SequenceRejected, check_simulation
 from data_gen.sim.contacts import DTYPE, BroadPhase
-from data_gen.sim.energy_rise import MAX_ENERGY_RISE_FRACTION, largest_energy_rise, total_energy_j, weight_size_j
+from data_gen.sim.energy_rise import (
+    MAX_ENERGY_RISE_FRACTION,
+    largest_energy_rise,
+    run_energy_rise,
+    total_energy_j,
+    weight_size_j,
+)
 from data_gen.sim.material import Material
 from tests.sim.test_sim_collision import run_released_together
 
@@ -53,11 +59,11 @@ def test_the_check_rejects_the_broad_phase_blind_spot_and_passes_the_fixed_run(t
     material = [Material(1e9, 0.3, 1000.0)] * 2
     fixed = run_released_together(1e9, False, tmp_path)
     check_simulation(fixed, material)
-    good = _rise(fixed)
+    good = run_energy_rise(fixed)
     assert good.fraction < 0.1 * MAX_ENERGY_RISE_FRACTION, good
     monkeypatch.setattr(BroadPhase, "reach", _mean_velocity_reach)
     blind = run_released_together(1e9, False, tmp_path)
-    bad = _rise(blind)
+    bad = run_energy_rise(blind)
     assert bad.fraction > 10 * MAX_ENERGY_RISE_FRACTION, bad
     assert bad.rise_j > 1.0  # joules, from nowhere
     # the overlap check misses it (the upper box sinks in and is pushed out between two recorded frames)
@@ -65,9 +71,3 @@ def test_the_check_rejects_the_broad_phase_blind_spot_and_passes_the_fixed_run(t
         check_simulation(blind, material)
     assert err.value.reason == "energy_gain"
 
-
-def _rise(result):
-    tracks = result.objects
-    return largest_energy_rise(total_energy_j(result.energies_j), [float(t.masses_kg.sum()) for t in tracks],
-                               [float(np.ptp(t.contact_points_rest_m, axis=0).max()) for t in tracks],
-                               float(np.linalg.norm(result.gravity_m_s2)))  # fmt: skip
