@@ -53,6 +53,7 @@ from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent_m
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.scenario import Scenario
+from data_gen.skinning_domains import skinning_domain
 from data_gen.sim.contact_points import SurfaceSamples
 from data_gen.sim.energy_rise import MAX_ENERGY_RISE_FRACTION, run_energy_rise
 from data_gen.sim.material import Material
@@ -62,6 +63,7 @@ from data_gen.sim.recording import SimulationResult
 from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_from_tmat, displacement_from_tmat, tmat_from_z
 from data_gen.sim.solver import SimulationError
 from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
+from data_gen.sim.skinning import SkinningDomain
 from data_gen.sim.threads import torch_threads
 from data_gen.sim.world import SimObjectSpec, Simulator, UnsimulatableDraw
 from newtphys import geometry, schema
@@ -150,6 +152,7 @@ class SceneObject:
     material: Material
     material_id: int
     semantic_id: int
+    skinning_domain: SkinningDomain | None = None  # the shape's canonical training points (None: its own)
 
 
 def envelope_sdf(shape: Shape):
@@ -202,6 +205,7 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
             contact_surface=contact_surface,
             material=Material(p.young_modulus_pa, p.poisson_ratio, p.density_kg_m3),
             material_id=mat_ids[p.material], semantic_id=asset.semantic_id,
+            skinning_domain=skinning_domain(p.asset, p.size_m, settings.interior_points),
         ))
     return out
 
@@ -213,7 +217,7 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
             name=f"{o.object_id}:{o.asset.name}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
             material=o.material, position_m=p.position_m, orientation_wxyz=p.orientation_wxyz,
             velocity_m_s=p.velocity_m_s, angular_velocity_rad_s=p.angular_velocity_rad_s,
-            surface=o.contact_surface,
+            surface=o.contact_surface, skinning_domain=o.skinning_domain,
         )
         for o, p in zip(objects, scenario.objects)
     ]
@@ -531,5 +535,6 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
             raise SequenceRejected("nan", f"map {name} has non-finite values")
     ws = build_world_state(scenario, objects, layout, result, maps, K, w2c, time.perf_counter() - t0,
                            lit=settings.lighting)
-    timings = {"prepare_s": t1 - t0, "simulate_s": t2 - t1, "render_s": t3 - t2}
+    timings = {"prepare_s": t1 - t0, "simulate_s": t2 - t1, "sim_setup_s": float(result.info.timings_s["setup"]),
+               "render_s": t3 - t2}  # (the simulator's set-up, skinning bases included, is part of simulate_s)
     return SequenceArrays(maps, K, w2c, ws), timings

@@ -24,9 +24,11 @@ from data_gen.sim.recording import ContactEventTracker, FrameRecorder, Simulatio
 from data_gen.sim.reduced import DTYPE, ReducedObject, z_to_q
 from data_gen.sim.skinning import (
     SkinningBasis,
+    SkinningDomain,
     SkinningTrainingSettings,
     handles_for_stiffness,
     rigid_basis,
+    train_domain_basis,
     train_skinning_basis,
 )
 from data_gen.sim.solver import ImplicitEulerSolver, SimBody, SimulationError
@@ -65,6 +67,9 @@ class SimObjectSpec:
         surface: samples of the object's surface (object frame); when given, contact uses
             ``preset.num_contact_points`` spheres touching the surface from inside (exact resting
             heights); None falls back to the cubature points as contact spheres (approximate).
+        skinning_domain: the object is a scaled draw of a shape whose basis is trained once on the shape's
+            canonical points (:class:`~data_gen.sim.skinning.SkinningDomain`, shared by every draw of it through
+            the cache); None trains on ``points_rest_m`` with the simulation's seed (every new draw trains).
     """
 
     name: str
@@ -79,6 +84,7 @@ class SimObjectSpec:
     num_handles: int | None = None
     skinning_settings: SkinningTrainingSettings | None = field(default=None)
     surface: SurfaceSamples | None = field(default=None)
+    skinning_domain: SkinningDomain | None = field(default=None)
 
 
 @dataclass
@@ -163,9 +169,12 @@ class Simulator:
             settings = spec.skinning_settings or SkinningTrainingSettings(
                 steps=max(1, self.preset.skinning_training_steps)
             )
-            basis = train_skinning_basis(
-                pts, num_h, mat.poisson_ratio, settings=settings, seed=seed, cache_dir=self.cache_dir
-            )
+            if spec.skinning_domain is not None:
+                basis = train_domain_basis(spec.skinning_domain, num_h, settings=settings, cache_dir=self.cache_dir)
+            else:
+                basis = train_skinning_basis(
+                    pts, num_h, mat.poisson_ratio, settings=settings, seed=seed, cache_dir=self.cache_dir
+                )
         rot = quat_to_matrix(spec.orientation_wxyz)
         pos = np.asarray(spec.position_m, dtype=np.float64)
 
@@ -353,6 +362,8 @@ def _validate_spec(spec: SimObjectSpec, gravity: np.ndarray) -> None:
         if value.shape != (3,) or not np.all(np.isfinite(value)):
             raise ValueError(f"object {name!r}: {key}={getattr(spec, key)!r} must be 3 finite numbers")
     size_m = float((pts.max(0) - pts.min(0)).max())
+    if spec.skinning_domain is not None:
+        _check_domain(name, pts, spec.skinning_domain, size_m)
     strain = rho * float(np.linalg.norm(gravity)) * size_m / e
     if strain > MAX_SELF_WEIGHT_STRAIN:
         raise UnsimulatableDraw(
@@ -379,3 +390,23 @@ def sample_cubature_points(
     vol = torch.as_tensor(cub.volumes_m3, dtype=DTYPE)
     radius = 0.5 * vol.numpy() ** (1.0 / 3.0)
     return pos, vol, radius
+
+
+# The scaled domain's bounding box must match the object's points within this fraction of the object's size
+# (both are interior samples of one shape; their boxes differ by about a sample spacing).
+DOMAIN_BOX_TOLERANCE = 0.15
+
+
+def _check_domain(name: str, pts: np.ndarray, domain: SkinningDomain, size_m: float) -> None:
+    """Raise ValueError when ``domain`` scaled by its scale does not cover the object's points ``pts`` (n, 3) m:
+    the basis would be trained on another shape or size (e.g. a scale given for another canonical size)."""
+    dom = np.asarray(domain.points_m, dtype=np.float64) * float(domain.scale)
+    lo_err = np.abs(dom.min(0) - pts.min(0)).max()
+    hi_err = np.abs(dom.max(0) - pts.max(0)).max()
+    if max(lo_err, hi_err) > DOMAIN_BOX_TOLERANCE * size_m:
+        raise ValueError(
+            f"object {name!r}: skinning_domain scaled by {domain.scale:.6g} spans "
+            f"{np.round(dom.min(0), 4).tolist()}..{np.round(dom.max(0), 4).tolist()} m, the object's points "
+            f"{np.round(pts.min(0), 4).tolist()}..{np.round(pts.max(0), 4).tolist()} m (allowed difference "
+            f"{DOMAIN_BOX_TOLERANCE} x size = {DOMAIN_BOX_TOLERANCE * size_m:.4g} m): not the same shape or scale"
+        )
