@@ -192,8 +192,11 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
         asset = get_object(p.asset, size_m=p.size_m).with_material_color(p.material, rng)
         surface = gaussians_from_object(asset, rng, count=settings.object_gaussians)
         volume = asset.volume_m3()
-        spacing = (volume / settings.interior_points) ** (1.0 / 3.0)
-        interior = asset.interior_points(spacing, rng)
+        domain = skinning_domain(p.asset, p.size_m, settings.interior_points)
+        if domain is not None:  # the shape's own particles, scaled: its one basis is trained on exactly these
+            interior = np.asarray(domain.points_m, dtype=np.float64) * domain.scale
+        else:
+            interior = asset.interior_points((volume / settings.interior_points) ** (1.0 / 3.0), rng)
         if len(interior) < 8:
             raise SequenceRejected("degenerate_object", f"object {p.object_id} ({p.asset}) has {len(interior)} interior points")
         # contact spheres touch this surface from inside (exact resting heights, see data_gen.sim.contact_points)
@@ -205,7 +208,7 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
             contact_surface=contact_surface,
             material=Material(p.young_modulus_pa, p.poisson_ratio, p.density_kg_m3),
             material_id=mat_ids[p.material], semantic_id=asset.semantic_id,
-            skinning_domain=skinning_domain(p.asset, p.size_m, settings.interior_points),
+            skinning_domain=domain,
         ))
     return out
 

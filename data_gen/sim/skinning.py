@@ -368,11 +368,12 @@ class SkinningBasis:
 class SkinningDomain:
     """Where an object's basis is trained when not on its own sample points: a shape's canonical points.
 
-    Every draw of one library shape is that shape scaled about its frame origin, and the basis is a function
-    of position, not of the sample points it was trained on. Trained once on a fixed point set of the shape at
-    scale 1 with a fixed seed (:func:`train_domain_basis`), it serves every draw, at every size and for every
-    material, through the cache: a new draw trains nothing. (Training on each draw's own random interior points
-    with the draw's seed missed the cache on every draw.)
+    Every draw of one library shape is that shape scaled about its frame origin. Trained once on a fixed point
+    set of the shape at scale 1 with a fixed seed (:func:`train_domain_basis`), a basis serves every draw, at
+    every size and for every material, through the cache: a new draw trains nothing. (Training on each draw's
+    own random interior points with the draw's seed missed the cache on every draw.) The draws' particles must
+    be these points, scaled: the training shapes the weights' gradients on its points only, and the same basis
+    integrated on another sample of the shape made simulations fail (see the Simulator's check).
 
     Attributes:
         points_m: (n, 3) interior points of the shape at scale 1, object frame, m (n >= 4).
@@ -408,7 +409,7 @@ def train_domain_basis(
     """The basis of an object drawn from ``domain``'s shape: trained (or loaded from the cache) on the shape's
     canonical points with its seed and :data:`DOMAIN_POISSON_RATIO` (the energies in ``metadata`` are at that
     ratio), then scaled to the object (:meth:`SkinningBasis.scaled`)."""
-    points = torch.from_numpy(np.array(domain.points_m, dtype=np.float64))  # a copy: the domain may be read-only
+    points = torch.from_numpy(np.array(domain.points_m, dtype=np.float64))  # a copy: the domain's may be read-only
     basis = train_skinning_basis(points, num_handles, DOMAIN_POISSON_RATIO, settings=settings, seed=int(domain.seed),
                                  cache_dir=cache_dir)  # fmt: skip
     out = basis.scaled(domain.scale)

@@ -109,9 +109,9 @@ def _spec(points: np.ndarray, domain: SkinningDomain | None, name: str = "block"
     )
 
 
-def test_simulator_trains_on_the_domain_and_checks_it_fits(tmp_path: Path) -> None:
+def test_simulator_trains_on_the_domain_and_checks_the_particles_are_its_points(tmp_path: Path) -> None:
     canonical = _block_points(300, seed=1)
-    draw = 1.5 * _block_points(300, seed=2)  # another sample of the same shape, 1.5 x larger
+    draw = 1.5 * canonical  # the draw's particles: the domain's points scaled
     sim = Simulator(StaticScene(), [_spec(draw, SkinningDomain(canonical, 1.5, 5))], (0.0, 0.0, -9.81),
                     load_preset("draft"), seed=0, skinning_cache_dir=str(tmp_path))  # fmt: skip
     basis = sim.prepared[0].basis
@@ -120,7 +120,13 @@ def test_simulator_trains_on_the_domain_and_checks_it_fits(tmp_path: Path) -> No
     x = torch.from_numpy(draw)
     torch.testing.assert_close(basis.evaluate(x)[0], expected.evaluate(x)[0], rtol=0, atol=0)
     assert len(list(tmp_path.glob("*.pt"))) == 1
-    # a domain of the wrong size (scale given for another canonical size) is refused, naming the object
-    with pytest.raises(ValueError, match=r"object 'big'.*skinning_domain scaled by 0.75.*not the same shape"):
-        Simulator(StaticScene(), [_spec(draw, SkinningDomain(canonical, 0.75, 5), name="big")], (0.0, 0.0, -9.81),
-                  load_preset("draft"), seed=0, skinning_cache_dir=str(tmp_path))  # fmt: skip
+    # particles that are not the domain's points scaled are refused, naming the object: a scale given for another
+    # canonical size, another sample of the same shape, another count
+    for name, points, domain, match in (
+        ("big", draw, SkinningDomain(canonical, 0.75, 5), r"differ from the skinning_domain's points scaled by 0.75"),
+        ("resampled", 1.5 * _block_points(300, seed=2), SkinningDomain(canonical, 1.5, 5), r"differ from"),
+        ("fewer", draw[:200], SkinningDomain(canonical, 1.5, 5), r"shape \(200, 3\), its skinning_domain \(300, 3\)"),
+    ):
+        with pytest.raises(ValueError, match=rf"object '{name}'.*{match}"):
+            Simulator(StaticScene(), [_spec(points, domain, name=name)], (0.0, 0.0, -9.81), load_preset("draft"),
+                      seed=0, skinning_cache_dir=str(tmp_path))  # fmt: skip
