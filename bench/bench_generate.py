@@ -4,12 +4,11 @@ The issue's reference sequence: a ``pile`` of 5 objects (the shipped scenario's 
 spot), 2 s at 25 FPS, 256x256, ``standard`` preset, on this machine; the ``draft`` preset on the same draws is
 the baseline measured in the same run. Each preset runs its draws twice:
 
-- ``cold``: a fresh, empty skinning cache, as on a new machine: every deformable object trains its basis
-  (7-15 s each);
-- ``warm``: the same draws again with the bases of the cold pass cached (the simulation alone);
-- ``new``: as many new draws (other seeds) with that cache, which is what a generation run pays per draw once it
-  has seen some shapes: a basis is trained once per shape and handle count and serves every draw of that shape
-  at any size and material (``data_gen/skinning_domains.py``); only unseen (shape, handle count) pairs train.
+- ``cold``: a fresh, empty skinning cache: every deformable object trains its basis (7-15 s each);
+- ``warm``: the same draws again with the bases of the cold pass cached (the simulation alone, as when a run is
+  repeated with the same seeds);
+- ``new``: as many new draws (other seeds) with that cache, which is what a generation run pays per draw: each
+  draw's bases are trained on its own random particles with its own seed, so a new draw hits no cached basis.
 
 ``simulate_s`` includes the simulator's set-up (``sim_setup_s``: skinning bases, cubature, contact spheres).
 Prints a table and writes bench/results/generate.json (generate_<scenario>.json for other scenarios).

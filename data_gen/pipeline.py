@@ -53,7 +53,6 @@ from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent_m
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.scenario import Scenario
-from data_gen.skinning_domains import skinning_domain
 from data_gen.sim.contact_points import SurfaceSamples
 from data_gen.sim.energy_rise import MAX_ENERGY_RISE_FRACTION, run_energy_rise
 from data_gen.sim.material import Material
@@ -63,7 +62,6 @@ from data_gen.sim.recording import SimulationResult
 from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_from_tmat, displacement_from_tmat, tmat_from_z
 from data_gen.sim.solver import SimulationError
 from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
-from data_gen.sim.skinning import SkinningDomain
 from data_gen.sim.threads import torch_threads
 from data_gen.sim.world import SimObjectSpec, Simulator, UnsimulatableDraw
 from newtphys import geometry, schema
@@ -152,7 +150,6 @@ class SceneObject:
     material: Material
     material_id: int
     semantic_id: int
-    skinning_domain: SkinningDomain | None = None  # the shape's canonical training points (None: its own)
 
 
 def envelope_sdf(shape: Shape):
@@ -192,11 +189,8 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
         asset = get_object(p.asset, size_m=p.size_m).with_material_color(p.material, rng)
         surface = gaussians_from_object(asset, rng, count=settings.object_gaussians)
         volume = asset.volume_m3()
-        domain = skinning_domain(p.asset, p.size_m, settings.interior_points)
-        if domain is not None:  # the shape's own particles, scaled: its one basis is trained on exactly these
-            interior = np.asarray(domain.points_m, dtype=np.float64) * domain.scale
-        else:
-            interior = asset.interior_points((volume / settings.interior_points) ** (1.0 / 3.0), rng)
+        spacing = (volume / settings.interior_points) ** (1.0 / 3.0)
+        interior = asset.interior_points(spacing, rng)
         if len(interior) < 8:
             raise SequenceRejected("degenerate_object", f"object {p.object_id} ({p.asset}) has {len(interior)} interior points")
         # contact spheres touch this surface from inside (exact resting heights, see data_gen.sim.contact_points)
@@ -208,7 +202,6 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
             contact_surface=contact_surface,
             material=Material(p.young_modulus_pa, p.poisson_ratio, p.density_kg_m3),
             material_id=mat_ids[p.material], semantic_id=asset.semantic_id,
-            skinning_domain=domain,
         ))
     return out
 
@@ -220,7 +213,7 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
             name=f"{o.object_id}:{o.asset.name}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
             material=o.material, position_m=p.position_m, orientation_wxyz=p.orientation_wxyz,
             velocity_m_s=p.velocity_m_s, angular_velocity_rad_s=p.angular_velocity_rad_s,
-            surface=o.contact_surface, skinning_domain=o.skinning_domain,
+            surface=o.contact_surface,
         )
         for o, p in zip(objects, scenario.objects)
     ]

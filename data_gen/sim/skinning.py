@@ -78,7 +78,6 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from data_gen.sim.material import energy_density, lame_parameters
@@ -344,77 +343,6 @@ class SkinningBasis:
         mlp.load_state_dict(payload["state_dict"])
         mlp.requires_grad_(False)
         return cls(num_handles, mlp, payload["center_m"], payload["half_extent_m"], metadata=metadata)
-
-
-    def scaled(self, scale: float) -> SkinningBasis:
-        """The same weights on the object scaled by ``scale`` (> 0) about its frame origin: ``w'(s x) = w(x)``
-        and ``grad w'(s x) = grad w(x) / s``. The MLP's (or the blend's) frame is scaled, its weights are
-        shared; weights are dimensionless, so the column mix and orthonormality carry over unchanged."""
-        scale = float(scale)
-        if not (scale > 0.0 and math.isfinite(scale)):
-            raise ValueError(f"scale={scale!r} is out of range; allowed: finite > 0")
-        metadata = dict(self.metadata)
-        if self.blend is not None:
-            b = self.blend
-            blend = BlendWeights(b.centres_m * scale, b.width_m * scale, b.mix)
-            return SkinningBasis(self.num_handles, blend=blend, metadata=metadata)
-        if self.mlp is None:
-            return SkinningBasis(self.num_handles, metadata=metadata)
-        return SkinningBasis(self.num_handles, self.mlp, self.center_m * scale, self.half_extent_m * scale,
-                             metadata=metadata)  # fmt: skip
-
-
-@dataclass(frozen=True)
-class SkinningDomain:
-    """Where an object's basis is trained when not on its own sample points: a shape's canonical points.
-
-    Every draw of one library shape is that shape scaled about its frame origin. Trained once on a fixed point
-    set of the shape at scale 1 with a fixed seed (:func:`train_domain_basis`), a basis serves every draw, at
-    every size and for every material, through the cache: a new draw trains nothing. (Training on each draw's
-    own random interior points with the draw's seed missed the cache on every draw.) The draws' particles must
-    be these points, scaled: the training shapes the weights' gradients on its points only, and the same basis
-    integrated on another sample of the shape made simulations fail (see the Simulator's check).
-
-    Attributes:
-        points_m: (n, 3) interior points of the shape at scale 1, object frame, m (n >= 4).
-        scale: the object is the shape scaled by this factor about its frame origin (> 0).
-        seed: seed of the training, fixed per shape.
-    """
-
-    points_m: np.ndarray
-    scale: float
-    seed: int
-
-    def __post_init__(self) -> None:
-        pts = np.asarray(self.points_m)
-        if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 4 or not np.all(np.isfinite(pts)):
-            raise ValueError(f"SkinningDomain.points_m must be finite with shape (n >= 4, 3); got {pts.shape}")
-        if not (self.scale > 0.0 and math.isfinite(self.scale)):
-            raise ValueError(f"SkinningDomain.scale={self.scale!r} is out of range; allowed: finite > 0")
-        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ValueError(f"SkinningDomain.seed={self.seed!r} must be an integer >= 0")
-
-
-# The trained subspace does not depend on the Poisson ratio (it only scales the objective, see the module
-# docstring): a domain's basis is trained once with this one, whatever the draw's material.
-DOMAIN_POISSON_RATIO = 0.3
-
-
-def train_domain_basis(
-    domain: SkinningDomain,
-    num_handles: int,
-    settings: SkinningTrainingSettings | None = None,
-    cache_dir: str | os.PathLike | None = None,
-) -> SkinningBasis:
-    """The basis of an object drawn from ``domain``'s shape: trained (or loaded from the cache) on the shape's
-    canonical points with its seed and :data:`DOMAIN_POISSON_RATIO` (the energies in ``metadata`` are at that
-    ratio), then scaled to the object (:meth:`SkinningBasis.scaled`)."""
-    points = torch.from_numpy(np.array(domain.points_m, dtype=np.float64))  # a copy: the domain's may be read-only
-    basis = train_skinning_basis(points, num_handles, DOMAIN_POISSON_RATIO, settings=settings, seed=int(domain.seed),
-                                 cache_dir=cache_dir)  # fmt: skip
-    out = basis.scaled(domain.scale)
-    out.metadata.update(domain_scale=float(domain.scale), domain_poisson_ratio=DOMAIN_POISSON_RATIO)
-    return out
 
 
 def rigid_basis() -> SkinningBasis:

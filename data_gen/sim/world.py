@@ -24,11 +24,9 @@ from data_gen.sim.recording import ContactEventTracker, FrameRecorder, Simulatio
 from data_gen.sim.reduced import DTYPE, ReducedObject, z_to_q
 from data_gen.sim.skinning import (
     SkinningBasis,
-    SkinningDomain,
     SkinningTrainingSettings,
     handles_for_stiffness,
     rigid_basis,
-    train_domain_basis,
     train_skinning_basis,
 )
 from data_gen.sim.solver import ImplicitEulerSolver, SimBody, SimulationError
@@ -67,10 +65,6 @@ class SimObjectSpec:
         surface: samples of the object's surface (object frame); when given, contact uses
             ``preset.num_contact_points`` spheres touching the surface from inside (exact resting
             heights); None falls back to the cubature points as contact spheres (approximate).
-        skinning_domain: the object is a scaled draw of a shape whose basis is trained once on the shape's
-            canonical points (:class:`~data_gen.sim.skinning.SkinningDomain`, shared by every draw of it through
-            the cache); ``points_rest_m`` must then be those points scaled. None trains on ``points_rest_m`` with
-            the simulation's seed (every new draw trains).
     """
 
     name: str
@@ -85,7 +79,6 @@ class SimObjectSpec:
     num_handles: int | None = None
     skinning_settings: SkinningTrainingSettings | None = field(default=None)
     surface: SurfaceSamples | None = field(default=None)
-    skinning_domain: SkinningDomain | None = field(default=None)
 
 
 @dataclass
@@ -170,12 +163,9 @@ class Simulator:
             settings = spec.skinning_settings or SkinningTrainingSettings(
                 steps=max(1, self.preset.skinning_training_steps)
             )
-            if spec.skinning_domain is not None:
-                basis = train_domain_basis(spec.skinning_domain, num_h, settings=settings, cache_dir=self.cache_dir)
-            else:
-                basis = train_skinning_basis(
-                    pts, num_h, mat.poisson_ratio, settings=settings, seed=seed, cache_dir=self.cache_dir
-                )
+            basis = train_skinning_basis(
+                pts, num_h, mat.poisson_ratio, settings=settings, seed=seed, cache_dir=self.cache_dir
+            )
         rot = quat_to_matrix(spec.orientation_wxyz)
         pos = np.asarray(spec.position_m, dtype=np.float64)
 
@@ -363,8 +353,6 @@ def _validate_spec(spec: SimObjectSpec, gravity: np.ndarray) -> None:
         if value.shape != (3,) or not np.all(np.isfinite(value)):
             raise ValueError(f"object {name!r}: {key}={getattr(spec, key)!r} must be 3 finite numbers")
     size_m = float((pts.max(0) - pts.min(0)).max())
-    if spec.skinning_domain is not None:
-        _check_domain(name, pts, spec.skinning_domain, size_m)
     strain = rho * float(np.linalg.norm(gravity)) * size_m / e
     if strain > MAX_SELF_WEIGHT_STRAIN:
         raise UnsimulatableDraw(
@@ -391,27 +379,3 @@ def sample_cubature_points(
     vol = torch.as_tensor(cub.volumes_m3, dtype=DTYPE)
     radius = 0.5 * vol.numpy() ** (1.0 / 3.0)
     return pos, vol, radius
-
-
-# A domain's points scaled by its scale must be the object's particles to this relative tolerance (of its size).
-DOMAIN_POINTS_RTOL = 1e-9
-
-
-def _check_domain(name: str, pts: np.ndarray, domain: SkinningDomain, size_m: float) -> None:
-    """Raise ValueError unless the object's particles ``pts`` (n, 3) m are ``domain``'s points scaled by its scale:
-    the basis is trained on the domain's points, and the simulation must integrate it on those same points (the
-    mass and the cubature; evaluated on another sample of the same shape, a shared basis made a 4.4 MPa yoga mat
-    roll store 70 J of elastic energy on landing and blow up, where the same points gave 0 J)."""
-    dom = np.asarray(domain.points_m, dtype=np.float64) * float(domain.scale)
-    if dom.shape != pts.shape:
-        raise ValueError(
-            f"object {name!r}: points_rest_m has shape {pts.shape}, its skinning_domain {dom.shape}: the particles "
-            f"must be the domain's points scaled by {domain.scale:.6g}"
-        )
-    err = float(np.abs(dom - pts).max())
-    if err > DOMAIN_POINTS_RTOL * size_m:
-        raise ValueError(
-            f"object {name!r}: points_rest_m differ from the skinning_domain's points scaled by {domain.scale:.6g} "
-            f"by up to {err:.3g} m (allowed {DOMAIN_POINTS_RTOL} x size = {DOMAIN_POINTS_RTOL * size_m:.3g} m): the "
-            f"particles must be the domain's points scaled"
-        )
