@@ -116,7 +116,7 @@ class RenderSettings:
     device: str
     """Warp device: ``cpu`` or ``cuda``."""
     num_threads: int
-    """Torch threads of one simulation."""
+    """CPU threads of one sequence: the renderer's row bands, and the draw's skinning bases trained side by side."""
     lighting: bool
     """Shade RGB with the scene's light (``data_gen.render.lighting``); false: colours as baked (unlit)."""
     shadows: bool
@@ -207,7 +207,9 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
 
 
 def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, preset: QualityPreset,
-             skinning_cache_dir: str | None = None) -> SimulationResult:
+             skinning_cache_dir: str | None = None, training_threads: int = 1) -> SimulationResult:
+    """Simulate a scenario's objects (``training_threads``: threads that train the draw's skinning bases side by
+    side, the same bases in every case); raises SequenceRejected for a draw whose simulation fails or is wrong."""
     specs = [
         SimObjectSpec(
             name=f"{o.object_id}:{o.asset.name}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
@@ -219,7 +221,7 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
     ]
     try:
         sim = Simulator(sim_static_scene(layout), specs, scenario.gravity_m_s2, preset, seed=scenario.seed,
-                        skinning_cache_dir=skinning_cache_dir)
+                        skinning_cache_dir=skinning_cache_dir, training_threads=training_threads)
         result = sim.run(scenario.num_frames, scenario.fps)
     except SimulationError as e:
         raise SequenceRejected("simulation_failed", str(e)) from None
@@ -517,7 +519,7 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
     layout = get_scene_layout(scenario.scene)
     objects = build_objects(scenario, settings)
     t1 = time.perf_counter()
-    result = simulate(scenario, objects, layout, preset, skinning_cache_dir)
+    result = simulate(scenario, objects, layout, preset, skinning_cache_dir, training_threads=settings.num_threads)
     t2 = time.perf_counter()
     with torch_threads(1):  # the per-frame products are small: one thread beats a contended pool
         maps, K, w2c = render_sequence(scenario, objects, layout, result, settings)

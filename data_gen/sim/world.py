@@ -10,7 +10,10 @@ the reduced state: handle 0 starts at ``T_0 = [R - I | p]`` so ``x = R x0 + p`` 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import torch
@@ -118,8 +121,12 @@ class Simulator:
         skinning_cache_dir: str | None = None,
         num_threads: int = 1,
         fused_newton: bool = True,
+        training_threads: int = 1,
     ) -> None:
         self.num_threads = int(num_threads)
+        if not isinstance(training_threads, (int, np.integer)) or training_threads < 1:
+            raise ValueError(f"training_threads={training_threads!r} must be an integer >= 1")
+        self.training_threads = int(training_threads)
         self.fused_newton = bool(fused_newton)
         self.scene = static_scene
         self.preset = load_preset(preset) if isinstance(preset, str) else preset
@@ -135,8 +142,9 @@ class Simulator:
         if len(set(names)) != len(names):
             raise ValueError(f"object names must be unique; got {names}")
         t0 = time.perf_counter()
+        bases = self._bases(objects)
         with torch_threads(self.num_threads):
-            self.prepared = [self._prepare(k, spec) for k, spec in enumerate(objects)]
+            self.prepared = [self._prepare(k, spec, basis) for k, (spec, basis) in enumerate(zip(objects, bases))]
         self.setup_time_s = time.perf_counter() - t0
         self._check_spawn_overlaps()
 
@@ -144,28 +152,46 @@ class Simulator:
     def _object_seed(self, index: int) -> int:
         return int(np.random.SeedSequence([self.seed, index]).generate_state(1)[0])
 
-    def _prepare(self, index: int, spec: SimObjectSpec) -> _Prepared:
-        _validate_spec(spec, self.gravity)
-        pts = torch.as_tensor(np.asarray(spec.points_rest_m, dtype=np.float64))
-        mat = spec.material
-        size_m = float((pts.max(0).values - pts.min(0).values).max())
-        num_h = spec.num_handles
-        if num_h is None:
-            num_h = handles_for_stiffness(
-                mat.young_modulus_pa, mat.density_kg_m3, size_m=size_m, max_handles=self.preset.max_handles
-            )
-        if not isinstance(num_h, int) or num_h < 1:
-            raise ValueError(f"object {spec.name!r}: num_handles={num_h!r} must be an integer >= 1")
-        seed = self._object_seed(index)
-        if num_h == 1:
-            basis = rigid_basis()
-        else:
+    def _bases(self, objects: list[SimObjectSpec]) -> list[SkinningBasis]:
+        """Every object's skinning basis (trained, or loaded from the cache), after validating every spec.
+
+        The objects that need training train side by side in ``training_threads`` threads, each on one torch
+        thread: every training is the same single-threaded computation either way, so the bases are the same
+        bits, and a job given several CPUs does not leave all but one idle while a draw's bases train (7-15 s
+        each at ``standard``)."""
+        jobs: list[Callable[[], SkinningBasis]] = []
+        for index, spec in enumerate(objects):  # loop over objects: validation and handle counts only
+            _validate_spec(spec, self.gravity)
+            pts = torch.as_tensor(np.asarray(spec.points_rest_m, dtype=np.float64))
+            mat = spec.material
+            num_h = spec.num_handles
+            if num_h is None:
+                size_m = float((pts.max(0).values - pts.min(0).values).max())
+                num_h = handles_for_stiffness(
+                    mat.young_modulus_pa, mat.density_kg_m3, size_m=size_m, max_handles=self.preset.max_handles
+                )
+            if not isinstance(num_h, int) or num_h < 1:
+                raise ValueError(f"object {spec.name!r}: num_handles={num_h!r} must be an integer >= 1")
+            if num_h == 1:
+                jobs.append(rigid_basis)
+                continue
             settings = spec.skinning_settings or SkinningTrainingSettings(
                 steps=max(1, self.preset.skinning_training_steps)
             )
-            basis = train_skinning_basis(
-                pts, num_h, mat.poisson_ratio, settings=settings, seed=seed, cache_dir=self.cache_dir
-            )
+            jobs.append(partial(train_skinning_basis, pts, num_h, mat.poisson_ratio, settings=settings,
+                                seed=self._object_seed(index), cache_dir=self.cache_dir))  # fmt: skip
+        workers = min(self.training_threads, sum(job is not rigid_basis for job in jobs))
+        if workers <= 1:
+            with torch_threads(self.num_threads):
+                return [job() for job in jobs]
+        with torch_threads(1), ThreadPoolExecutor(workers) as pool:  # one torch thread each, for the whole pool
+            return list(pool.map(lambda job: job(), jobs))
+
+    def _prepare(self, index: int, spec: SimObjectSpec, basis: SkinningBasis) -> _Prepared:
+        pts = torch.as_tensor(np.asarray(spec.points_rest_m, dtype=np.float64))
+        mat = spec.material
+        seed = self._object_seed(index)
+        num_h = basis.num_handles
         rot = quat_to_matrix(spec.orientation_wxyz)
         pos = np.asarray(spec.position_m, dtype=np.float64)
 
