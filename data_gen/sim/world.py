@@ -142,8 +142,8 @@ class Simulator:
         if len(set(names)) != len(names):
             raise ValueError(f"object names must be unique; got {names}")
         t0 = time.perf_counter()
-        bases = self._bases(objects)
         with torch_threads(self.num_threads):
+            bases = self._bases(objects)
             self.prepared = [self._prepare(k, spec, basis) for k, (spec, basis) in enumerate(zip(objects, bases))]
         self.setup_time_s = time.perf_counter() - t0
         self._check_spawn_overlaps()
@@ -182,8 +182,7 @@ class Simulator:
                                 seed=self._object_seed(index), cache_dir=self.cache_dir))  # fmt: skip
         workers = min(self.training_threads, sum(job is not rigid_basis for job in jobs))
         if workers <= 1:
-            with torch_threads(self.num_threads):
-                return [job() for job in jobs]
+            return [job() for job in jobs]
         with torch_threads(1), ThreadPoolExecutor(workers) as pool:  # one torch thread each, for the whole pool
             return list(pool.map(lambda job: job(), jobs))
 
