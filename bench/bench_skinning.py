@@ -13,6 +13,11 @@ On a 0.4 x 0.1 x 0.1 m beam (2000 uniform particles, nu = 0.3) this measures, in
   random-init MLP;
 * the closed-form energy on 2000 held-out points of the same beam (generalisation: the
   basis is evaluated, not retrained, there; the LBS keeps its centres);
+* checkpoint selection, in the same run: on 20 % held-out points with an early stop (the
+  default since skinning format v5) against on the training points for every step (before),
+  on the beam (vs steps) and on every deformable object of ``--pile-draws`` ``pile`` draws
+  (the pipeline's ~1,000 particles, handle counts and ``standard``'s 500 steps), each
+  scored on 8,000 fresh interior points of its shape;
 * the "before" columns: the numbers this bench measured with skinning format v3
   (Monte-Carlo loss, Cholesky-mixed batches; bench/results/skinning.json of that run).
 
@@ -91,6 +96,62 @@ def energies(evaluate, x: torch.Tensor, x_test: torch.Tensor) -> dict[str, float
             "exact_heldout": expected_perturbation_energy(wt, gt, x_test, NU)}
 
 
+def training_selection(settings: SkinningTrainingSettings) -> SkinningTrainingSettings:
+    """The selection before held-out points: checkpoints scored on the points trained on, no early stop."""
+    return dataclasses.replace(settings, validation_fraction=0.0, patience=10**9)
+
+
+def pile_objects(num_draws: int, fresh_points: int = 8000) -> list[dict]:
+    """Each deformable object of ``num_draws`` ``pile`` draws (the pipeline's particles and handle count,
+    ``standard``'s 500 steps) trained with held-out selection and with selection on its training points; both
+    scored by the expected energy on ``fresh_points`` new interior points of the same shape."""
+    import numpy as np
+
+    from data_gen.configs import render_settings, scenario_config
+    from data_gen.pipeline import build_objects
+    from data_gen.scenario import sample_scenario
+    from data_gen.sim.presets import load_preset
+    from data_gen.sim.skinning import handles_for_stiffness
+
+    preset = load_preset("standard")
+    settings = SkinningTrainingSettings(steps=preset.skinning_training_steps)
+    cfg = scenario_config("pile", scenes=("empty_floor",), num_objects=(5, 5))
+    rows = []
+    print(f"\npile objects ({num_draws} draws, standard, {settings.steps} steps at most), energy on {fresh_points} "
+          f"fresh points:\n{'draw':>4} {'object':>14} {'H':>2} {'held-out sel.':>13} {'s':>6} {'run':>4} | "
+          f"{'training sel.':>13} {'s':>6} | ratio")
+    for draw in range(num_draws):
+        scenario = sample_scenario(cfg, f"skin-{draw}", 5000 + draw, "train", "earth", 50, 25.0, (64, 64))
+        for obj in build_objects(scenario, render_settings()):
+            x = torch.as_tensor(obj.interior_points_m, dtype=torch.float64)
+            size = float((x.max(0).values - x.min(0).values).max())
+            mat = obj.material
+            h = handles_for_stiffness(mat.young_modulus_pa, mat.density_kg_m3, size_m=size,
+                                      max_handles=preset.max_handles)  # fmt: skip
+            if h == 1:
+                continue
+            spacing = (obj.volume_m3 / fresh_points) ** (1.0 / 3.0)
+            fresh = torch.as_tensor(obj.asset.interior_points(spacing, np.random.default_rng(123)), dtype=torch.float64)
+            row = {"draw": draw, "object": obj.asset.name, "num_handles": h, "points": len(x), "fresh": len(fresh)}
+            for key, s in (("held_out", settings), ("training", training_selection(settings))):
+                seconds, basis = train_timed(x, h, s, seed=7 + draw)
+                row[key] = {"seconds": seconds, "fresh_energy": expected_perturbation_energy(*basis.evaluate(fresh),
+                            fresh, NU), "steps_kept": basis.metadata.get("steps_kept"),
+                            "steps_run": basis.metadata.get("steps_run")}  # fmt: skip
+            row["ratio"] = row["held_out"]["fresh_energy"] / row["training"]["fresh_energy"]
+            rows.append(row)
+            a, b = row["held_out"], row["training"]
+            print(f"{draw:>4} {obj.asset.name:>14} {h:>2} {a['fresh_energy']:>13.2f} {a['seconds']:>6.2f} "
+                  f"{a['steps_run']:>4} | {b['fresh_energy']:>13.2f} {b['seconds']:>6.2f} | {row['ratio']:.3f}", flush=True)
+    if rows:
+        ratios = sorted(r["ratio"] for r in rows)
+        secs = [(r["held_out"]["seconds"], r["training"]["seconds"]) for r in rows]
+        print(f"{len(rows)} objects: fresh-point energy held-out / training selection: median "
+              f"{ratios[len(ratios) // 2]:.3f}, min {ratios[0]:.3f}, max {ratios[-1]:.3f}; seconds per basis "
+              f"{sum(a for a, _ in secs) / len(secs):.2f} vs {sum(b for _, b in secs) / len(secs):.2f}")
+    return rows
+
+
 def train_timed(points, num_handles, settings, seed) -> tuple[float, SkinningBasis]:
     with tempfile.TemporaryDirectory() as cache:  # a fresh cache: always a miss
         t0 = time.perf_counter()
@@ -102,7 +163,11 @@ def train_timed(points, num_handles, settings, seed) -> tuple[float, SkinningBas
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--pile-draws", type=int, default=None,
+                    help="pile draws whose deformable objects train both ways (default 4; --quick 1)")
     args = ap.parse_args()
+    if args.pile_draws is None:
+        args.pile_draws = 1 if args.quick else 4
     default = SkinningTrainingSettings()
     if args.quick:
         default = dataclasses.replace(default, steps=100)
@@ -137,22 +202,31 @@ def main() -> None:
                   f"{basis.metadata['source']}", flush=True)
         step_rows = []
         print(f"\n{'steps':>6} {'s/basis':>8} {'before s':>9} {'E before':>9} {'E shipped':>10} {'exact':>8} "
+              f"{'held-out':>9} {'run':>5} | selected on training points: {'s/basis':>8} {'exact':>8} "
               f"{'held-out':>9}   (H = 6)")
         for steps in step_counts:
             seconds, basis = train_timed(x, 6, dataclasses.replace(default, steps=steps), seed=0)
             e = energies(basis.evaluate, x, x_test)
+            seconds_t, basis_t = train_timed(x, 6, training_selection(dataclasses.replace(default, steps=steps)), seed=0)
+            e_t = energies(basis_t.evaluate, x, x_test)
             before_e, before_s = BEFORE_BY_STEPS.get(steps, (float("nan"), float("nan")))
             step_rows.append({"num_handles": 6, "steps": steps, "seconds": seconds, "energy_learned": e["mc"],
                               "exact_learned": e["exact"], "heldout_exact_learned": e["exact_heldout"],
                               "seconds_before": before_s, "energy_learned_before": before_e,
-                              "steps_kept": basis.metadata.get("steps_kept")})
+                              "steps_kept": basis.metadata.get("steps_kept"), "steps_run": basis.metadata.get("steps_run"),
+                              "training_selection": {"seconds": seconds_t, "exact_learned": e_t["exact"],
+                                                     "heldout_exact_learned": e_t["exact_heldout"],
+                                                     "steps_kept": basis_t.metadata.get("steps_kept")}})
             print(f"{steps:>6} {seconds:>8.2f} {before_s:>9.2f} {before_e:>9.1f} {e['mc']:>10.1f} {e['exact']:>8.1f} "
-                  f"{e['exact_heldout']:>9.1f}", flush=True)
+                  f"{e['exact_heldout']:>9.1f} {basis.metadata.get('steps_run'):>5} | {seconds_t:>8.2f} "
+                  f"{e_t['exact']:>8.1f} {e_t['exact_heldout']:>9.1f}", flush=True)
+        pile_rows = pile_objects(args.pile_draws)
 
     RESULTS.mkdir(parents=True, exist_ok=True)
     out = {
         "bench": "skinning", "quick": args.quick, "shape_m": BEAM_M, "num_points": 2000, "poisson_ratio": NU,
         "settings": dataclasses.asdict(default), "torch_threads": 1, "by_handles": rows, "by_steps": step_rows,
+        "pile_objects": pile_rows,
         "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(),
                     "load_avg_1min": os.getloadavg()[0], "torch": torch.__version__},
         "energy_metric": f"perturbation_energy: mean stable neo-Hookean energy density (E=1, lengths / longest side) "
