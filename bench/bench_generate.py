@@ -4,7 +4,8 @@ The issue's reference sequence: a ``pile`` of 5 objects (the shipped scenario's 
 spot), 2 s at 25 FPS, 256x256, ``standard`` preset, on this machine; the ``draft`` preset on the same draws is
 the baseline measured in the same run. Each preset runs its draws twice:
 
-- ``cold``: a fresh, empty skinning cache: every deformable object trains its basis (7-15 s each);
+- ``cold``: a fresh, empty skinning cache: every deformable object trains its basis (about 2 s each at
+  ``standard``; 7-15 s before the held-out early stop);
 - ``warm``: the same draws again with the bases of the cold pass cached (the simulation alone, as when a run is
   repeated with the same seeds);
 - ``new``: as many new draws (other seeds) with that cache, which is what a generation run pays per draw: each

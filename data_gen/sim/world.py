@@ -157,7 +157,7 @@ class Simulator:
 
         The objects that need training train side by side in ``training_threads`` threads, each on one torch
         thread: every training is the same single-threaded computation either way, so the bases are the same
-        bits, and a job given several CPUs does not leave all but one idle while a draw's bases train (7-15 s
+        bits, and a job given several CPUs does not leave all but one idle while a draw's bases train (about 2 s
         each at ``standard``)."""
         jobs: list[Callable[[], SkinningBasis]] = []
         for index, spec in enumerate(objects):  # loop over objects: validation and handle counts only
