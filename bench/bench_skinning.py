@@ -111,7 +111,7 @@ def pile_objects(num_draws: int, fresh_points: int = 8000) -> list[dict]:
     from data_gen.pipeline import build_objects
     from data_gen.scenario import sample_scenario
     from data_gen.sim.presets import load_preset
-    from data_gen.sim.skinning import handles_for_stiffness
+    from data_gen.sim.world import object_handle_count
 
     preset = load_preset("standard")
     settings = SkinningTrainingSettings(steps=preset.skinning_training_steps)
@@ -124,10 +124,7 @@ def pile_objects(num_draws: int, fresh_points: int = 8000) -> list[dict]:
         scenario = sample_scenario(cfg, f"skin-{draw}", 5000 + draw, "train", "earth", 50, 25.0, (64, 64))
         for obj in build_objects(scenario, render_settings()):
             x = torch.as_tensor(obj.interior_points_m, dtype=torch.float64)
-            size = float((x.max(0).values - x.min(0).values).max())
-            mat = obj.material
-            h = handles_for_stiffness(mat.young_modulus_pa, mat.density_kg_m3, size_m=size,
-                                      max_handles=preset.max_handles)  # fmt: skip
+            h = object_handle_count(obj.interior_points_m, obj.material, preset.max_handles)  # the Simulator's count
             if h == 1:
                 continue
             spacing = (obj.volume_m3 / fresh_points) ** (1.0 / 3.0)

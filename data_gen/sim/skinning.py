@@ -573,8 +573,7 @@ def expected_perturbation_energy(
         weights (n, H), grads (n, H, 3) in 1/m, points (n, 3) in m, H >= 2.
     """
     y, longest, mix = _normalised_orthonormal_mix(weights, points)
-    form = mix.T @ _energy_form(weights, grads * longest, y) @ mix
-    return _energy_scale(poisson_ratio) * float(torch.trace(form[1:, 1:]))
+    return _energy_scale(poisson_ratio) * _mode_energy(weights, grads * longest, y, mix)
 
 
 def blend_basis(points_rest: torch.Tensor, num_handles: int, seed: int = 0) -> SkinningBasis:
@@ -640,6 +639,12 @@ def _energy_form(w: torch.Tensor, g: torch.Tensor, y: torch.Tensor) -> torch.Ten
     return (3.0 * w.T @ w + cross + cross.T + grad_part) / w.shape[0]
 
 
+def _mode_energy(w: torch.Tensor, g: torch.Tensor, y: torch.Tensor, mix: torch.Tensor) -> float:
+    """Sum of Q over the non-constant columns of w @ mix (orthonormalised by ``mix``), without the material scale:
+    w (n, H), g (n, H, 3) in normalised length units, y (n, 3) normalised points, mix (H, H)."""
+    return float(torch.trace((mix.T @ _energy_form(w, g, y) @ mix)[1:, 1:]))
+
+
 def _ritz_output(
     h: torch.Tensor, dh: torch.Tensor, y: torch.Tensor, outputs: int, rtol: float
 ) -> tuple[torch.Tensor, torch.Tensor] | None:
@@ -702,11 +707,10 @@ def _optimise(
             )
             blend.metadata.update(energy_blend=e_blend, energy_learned=float("nan"), steps_kept=-1)
             return blend
+        mlp = learned.mlp
         if learned.validation_points:  # the kept features' output layer, fitted again on every point
-            refit = _ritz_fit(learned.mlp, y64, scale64)
-            mlp = learned.mlp if refit is None else refit[1]
-        else:
-            mlp = learned.mlp
+            refit = _ritz_fit(mlp, y64, scale64)
+            mlp = mlp if refit is None else refit[1]
         n = x.shape[0]
         with torch.no_grad():
             for ridge in (1e-10, 0.0):  # the second, exact pass removes the ridge and round-off of the first
@@ -768,7 +772,7 @@ def _held_out_energy(mlp: SkinningMLP, y_val: torch.Tensor, input_scale: torch.T
         mix = _orthonormalising_mix(w.T @ w / n, ridge=0.0)
     except RuntimeError:
         return math.inf
-    value = float(torch.trace((mix.T @ _energy_form(w, g, y_val) @ mix)[1:, 1:]))
+    value = _mode_energy(w, g, y_val, mix)
     return value if math.isfinite(value) else math.inf
 
 

@@ -38,7 +38,7 @@ from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.threads import torch_threads
 from newtphys.rotations import quat_to_matrix
 
-__all__ = ["SimObjectSpec", "Simulator", "SimulationError", "UnsimulatableDraw"]
+__all__ = ["SimObjectSpec", "Simulator", "SimulationError", "UnsimulatableDraw", "object_handle_count"]
 
 MAX_SELF_WEIGHT_STRAIN = 1.0  # rho |g| L / E above this: the object would collapse; refused
 
@@ -92,6 +92,16 @@ class _Prepared:
     contact: ContactPoints
     q0: torch.Tensor
     qdot0: torch.Tensor
+
+
+def object_handle_count(points_rest_m: np.ndarray, material: Material, max_handles: int) -> int:
+    """Handles an object gets when its spec leaves ``num_handles`` unset: ``handles_for_stiffness`` of its material
+    and size (the largest side of the particles' bounding box, m), capped at ``max_handles`` (the preset's)."""
+    pts = np.asarray(points_rest_m, dtype=np.float64)
+    size_m = float((pts.max(0) - pts.min(0)).max())
+    return handles_for_stiffness(
+        material.young_modulus_pa, material.density_kg_m3, size_m=size_m, max_handles=max_handles
+    )
 
 
 class Simulator:
@@ -166,10 +176,7 @@ class Simulator:
             mat = spec.material
             num_h = spec.num_handles
             if num_h is None:
-                size_m = float((pts.max(0).values - pts.min(0).values).max())
-                num_h = handles_for_stiffness(
-                    mat.young_modulus_pa, mat.density_kg_m3, size_m=size_m, max_handles=self.preset.max_handles
-                )
+                num_h = object_handle_count(spec.points_rest_m, mat, self.preset.max_handles)
             if not isinstance(num_h, int) or num_h < 1:
                 raise ValueError(f"object {spec.name!r}: num_handles={num_h!r} must be an integer >= 1")
             if num_h == 1:
