@@ -1908,11 +1908,14 @@ class FusedNewton:
         capacity = len(self.pair_mu)
         count = num_sub
         ss = Substeps()
-        self.sub_sphere_x = torch.zeros(count, n, s, 3, **like)
-        self.sub_scene_force = torch.zeros_like(self.sub_sphere_x)
-        self.sub_scene_normal = torch.zeros_like(self.sub_sphere_x)
-        self.sub_pair_force = torch.zeros(count, capacity, 3, **like)
-        self.sub_pair_normal = torch.zeros_like(self.sub_pair_force)
+        # the per-sub-step outputs are left uninitialised: _final_forces writes every entry a caller reads (each
+        # sphere of an island's objects, each pair of its range, in each of its sub-steps) before it is read, and
+        # pages never written are never touched (these buffers hold capacity rows: tens of MB in a large pile)
+        self.sub_sphere_x = torch.empty(count, n, s, 3, **like)
+        self.sub_scene_force = torch.empty_like(self.sub_sphere_x)
+        self.sub_scene_normal = torch.empty_like(self.sub_sphere_x)
+        self.sub_pair_force = torch.empty(count, capacity, 3, **like)
+        self.sub_pair_normal = torch.empty_like(self.sub_pair_force)
         self.sub_scene_sums = torch.zeros(count, n, SUMS, **like)
         self.sub_pair_sums = torch.zeros(count, 8, SUMS, **like)  # (grows with the groups, see _bind_sums)
         self.pair_group = torch.full((capacity,), -1, dtype=torch.int32, device=self.q.device)
