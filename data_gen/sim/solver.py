@@ -671,6 +671,8 @@ class ImplicitEulerSolver:
         is_member[members] = True
         sel = pairs if len(pairs) else np.zeros((0, 2), dtype=np.int64)
         inside = is_member[self.broad_phase.point_object[sel]]  # (P, 2)
+        if inside[:, 0].all():  # every pair's side i is a member already (every awake object in one solve)
+            return sel[:, 0], sel[:, 1]
         touching = inside[:, 0] | inside[:, 1]
         sel = sel[touching]
         swap = ~inside[touching, 0]  # orient every pair so that side i is an island member
