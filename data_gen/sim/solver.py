@@ -708,7 +708,8 @@ class ImplicitEulerSolver:
         stiffness, friction = self._pair_tables(h_s)
         radii = bp.radii_all.numpy()
         rs = torch.from_numpy(radii[gi] + radii[gj])
-        k, mu = torch.from_numpy(stiffness[oi, oj]), torch.from_numpy(friction[oi, oj])
+        flat = oi * stiffness.shape[1] + oj  # (one gather per table instead of a two-index one)
+        k, mu = torch.from_numpy(stiffness.ravel().take(flat)), torch.from_numpy(friction.ravel().take(flat))
         return oi, gi - bp.offsets[oi], oj, gj - bp.offsets[oj], k, mu, rs
 
     def _pair_set_without_start(self, gi: np.ndarray, gj: np.ndarray, positions: list[torch.Tensor],
