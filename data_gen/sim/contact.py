@@ -183,7 +183,6 @@ class PairFinder:
         self.capacity = 1024
         self._count = wp.zeros(1, dtype=wp.int32, device=device)
         self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=device)
-        self._count_host = self._count.numpy() if device == "cpu" else None  # a view (CPU arrays share memory)
         self._objects: _ObjectTable | None = None
         # per input name: a device array kept between calls and, on CPU, the numpy view it is written through
         self._staged: dict[str, tuple[wp.array, np.ndarray | None]] = {}
@@ -256,7 +255,7 @@ class PairFinder:
                 outputs=[self._count, self._pairs],
                 device=self.device,
             )
-            found = int(self._count_host[0] if self._count_host is not None else self._count.numpy()[0])
+            found = int(self._count.numpy()[0])
             if found <= self.capacity:
                 break
             self.capacity = int(2 ** np.ceil(np.log2(found)))
@@ -275,7 +274,7 @@ class PairFinder:
         kept = self._staged.get(name)
         if kept is None or kept[0].shape[0] != length:
             array = wp.zeros(length, dtype=dtype, device=self.device)
-            kept = self._staged[name] = (array, array.numpy().reshape(values.shape) if self.device == "cpu" else None)
+            kept = self._staged[name] = (array, array.numpy() if self.device == "cpu" else None)  # CPU: a view
         array, host = kept
         if host is not None:
             np.copyto(host, values)
