@@ -5,7 +5,8 @@ calls it measures by several times. :class:`SectionTimer` instead wraps a chosen
 simulator's step, its broad phase, its solves and its records, :data:`DEFAULT_SECTIONS`) with a
 ``time.perf_counter`` pair each, and every ``warp.launch`` / recorded ``warp.Launch.launch`` with one per kernel.
 The times are inclusive (a section's time contains the sections it calls), so the shares of a table do not add
-up to 100 %: read them as "how much of the run sits under this function".
+up to 100 %: read them as "how much of the run sits under this function"; the own time of a section is its
+inclusive time less that of the timed sections it called (one thread at a time: the open sections are one stack).
 
     from data_gen.sim.section_timer import SectionTimer
 
@@ -59,12 +60,14 @@ DEFAULT_SECTIONS: tuple[tuple[str, str, str], ...] = (
 @dataclass(frozen=True)
 class Section:
     """One timed section: its name (``Class.method``, ``function`` or ``launch:<kernel>``), inclusive wall time
-    (s), number of calls and share of the root section's time."""
+    (s), number of calls, share of the root section's time, and its own time (s): the inclusive time less that of
+    the timed sections it called (what is left to find in it)."""
 
     name: str
     seconds: float
     calls: int
     share: float
+    own_seconds: float
 
 
 class SectionTimer:
@@ -85,8 +88,10 @@ class SectionTimer:
         if not self.sections:
             raise ValueError("SectionTimer: no sections to time")
         self.kernels = kernels
-        self.seconds: Counter[str] = Counter()
+        self.seconds: Counter[str] = Counter()  # inclusive
+        self.own_seconds: Counter[str] = Counter()  # exclusive: less the timed sections called from it
         self.calls: Counter[str] = Counter()
+        self._open_children: list[float] = []  # per open call: time spent in the sections it called
         self._installed: list[tuple[object, str, object]] = []  # (owner, attribute, original)
         self._targets = [self._resolve(*section) for section in self.sections]
         self.root = self._targets[0][2]
@@ -109,16 +114,22 @@ class SectionTimer:
         return owners, method, method
 
     def _timed(self, function, label: str | None):
-        seconds, calls = self.seconds, self.calls
+        seconds, own, calls, open_children = self.seconds, self.own_seconds, self.calls, self._open_children
 
         @functools.wraps(function)
         def wrapper(*args, **kwargs):
+            open_children.append(0.0)  # the time of the sections this call opens
             start = time.perf_counter()
             try:
                 return function(*args, **kwargs)
             finally:
+                elapsed = time.perf_counter() - start
+                children = open_children.pop()
+                if open_children:
+                    open_children[-1] += elapsed
                 name = label if label is not None else _launch_label(args, kwargs)
-                seconds[name] += time.perf_counter() - start
+                seconds[name] += elapsed
+                own[name] += elapsed - children
                 calls[name] += 1
 
         return wrapper
@@ -164,18 +175,18 @@ class SectionTimer:
         """Every section that was called, by decreasing time; shares of the root's time (0 if never called)."""
         total = self.seconds.get(self.root, 0.0)
         rows = [
-            Section(name, s, self.calls[name], s / total if total > 0 else 0.0)
+            Section(name, s, self.calls[name], s / total if total > 0 else 0.0, self.own_seconds[name])
             for name, s in self.seconds.items()
         ]
         return sorted(rows, key=lambda row: (-row.seconds, row.name))
 
     def table(self) -> str:
-        """The results as a markdown table: ms, share of the root, calls, ms per call."""
-        lines = ["| section | ms | share | calls | ms per call |", "|---|---|---|---|---|"]
+        """The results as a markdown table: ms, share of the root, own ms, calls, ms per call."""
+        lines = ["| section | ms | share | own ms | calls | ms per call |", "|---|---|---|---|---|---|"]
         for row in self.results():
             lines.append(
-                f"| `{row.name}` | {1e3 * row.seconds:.1f} | {100 * row.share:.1f} % | {row.calls} | "
-                f"{1e3 * row.seconds / row.calls:.3f} |"
+                f"| `{row.name}` | {1e3 * row.seconds:.1f} | {100 * row.share:.1f} % | {1e3 * row.own_seconds:.1f} | "
+                f"{row.calls} | {1e3 * row.seconds / row.calls:.3f} |"
             )
         return "\n".join(lines)
 

@@ -53,9 +53,13 @@ def test_counts_inclusive_times_and_shares():
     assert rows["_Toy.inner"].seconds >= 5 * 0.002  # five sleeps of 2 ms at least
     assert rows["_Toy.outer"].seconds >= rows["_Toy.inner"].seconds  # inclusive: outer holds the inner calls
     assert rows["_Toy.outer"].share == 1.0  # the first section is the root
+    # own time: the outer call's, less its five inner calls (a sum, not a sleep); the inner ones call nothing timed
+    assert rows["_Toy.outer"].own_seconds == pytest.approx(rows["_Toy.outer"].seconds - rows["_Toy.inner"].seconds)
+    assert rows["_Toy.inner"].own_seconds == rows["_Toy.inner"].seconds
+    assert 0.0 <= rows["_Toy.outer"].own_seconds < rows["_Toy.inner"].seconds
     assert rows["_Toy.inner"].share == pytest.approx(rows["_Toy.inner"].seconds / rows["_Toy.outer"].seconds)
     table = timer.table().splitlines()
-    assert table[2].startswith("| `_Toy.outer` |") and len(table) == 2 + 3
+    assert table[2].startswith("| `_Toy.outer` |") and len(table) == 2 + 3 and table[0].count("|") == 7
 
 
 def test_wrappers_are_removed_on_exit_and_on_error():
