@@ -31,8 +31,9 @@ from dataclasses import dataclass
 
 import warp as wp
 
-# (module, class, method) of the sections timed by default; the first is the root of the table's shares
-DEFAULT_SECTIONS: tuple[tuple[str, str, str], ...] = (
+# (module, class or None for a module-level function, method) of the sections timed by default; the first is
+# the root of the table's shares
+DEFAULT_SECTIONS: tuple[tuple[str, str | None, str], ...] = (
     ("data_gen.sim.world", "Simulator", "run"),
     ("data_gen.sim.solver", "ImplicitEulerSolver", "step"),
     ("data_gen.sim.solver", "ImplicitEulerSolver", "_step_candidates"),
