@@ -83,13 +83,18 @@ def placements(count: int) -> list[tuple[float, float, float]]:
     return out
 
 
-def run_newtphys(scene: PeerScene, seed: int = 0, fused_newton: bool = True) -> dict:
+def newtphys_simulator(scene: PeerScene, seed: int = 0, fused_newton: bool = True) -> Simulator:
+    """NewtPhys's simulator of ``scene``: its boxes, preset and seed, one thread."""
     specs = [
         _box(f"box_{k}", HALF_M, scene.young_pa, pos, seed=10, training=QUICK_TRAINING, rho=DENSITY)
         for k, pos in enumerate(placements(scene.count))
     ]
-    sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), scene.quality, seed=seed, num_threads=1,
-                    fused_newton=fused_newton)  # fmt: skip
+    return Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), scene.quality, seed=seed, num_threads=1,
+                     fused_newton=fused_newton)  # fmt: skip
+
+
+def run_newtphys(scene: PeerScene, seed: int = 0, fused_newton: bool = True) -> dict:
+    sim = newtphys_simulator(scene, seed, fused_newton)
     frames = int(round(DURATION_S * FPS)) + 1
     t0, c0 = time.perf_counter(), time.process_time()
     res = sim.run(frames, fps=FPS)

@@ -25,30 +25,17 @@ from dataclasses import asdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_peers import DENSITY, DURATION_S, FPS, HALF_M, SCENES, placements  # noqa: E402
-from sim_bench_scenes import QUICK_TRAINING, _box  # noqa: E402
+from bench_peers import DURATION_S, FPS, SCENES, newtphys_simulator  # noqa: E402
 
 from data_gen.sim.records_digest import records_digest  # noqa: E402
 from data_gen.sim.section_timer import SectionTimer  # noqa: E402
-from data_gen.sim.static_scene import StaticScene  # noqa: E402
-from data_gen.sim.world import Simulator  # noqa: E402
-
-
-def scene_simulator(name: str, seed: int = 0) -> Simulator:
-    """The simulator of ``bench_peers.py``'s scene ``name`` (its boxes, preset and seed), one thread."""
-    scene = SCENES[name]
-    specs = [
-        _box(f"box_{k}", HALF_M, scene.young_pa, pos, seed=10, training=QUICK_TRAINING, rho=DENSITY)
-        for k, pos in enumerate(placements(scene.count))
-    ]
-    return Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), scene.quality, seed=seed, num_threads=1)
 
 
 def profile_scene(name: str, kernels: bool = True) -> dict:
     """One untimed and one timed run of scene ``name``: the untimed run's wall time (s), the table's rows and the
     timed run's digest and Newton iterations (the two runs' digests must agree: the timers change nothing)."""
     frames = int(round(DURATION_S * FPS)) + 1
-    sim = scene_simulator(name)
+    sim = newtphys_simulator(SCENES[name])
     start = time.perf_counter()
     plain = sim.run(frames, fps=FPS)
     plain_s = time.perf_counter() - start

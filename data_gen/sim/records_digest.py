@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import fields, is_dataclass
+from dataclasses import fields
 
 import numpy as np
 
@@ -31,8 +31,7 @@ def records_digest(result: SimulationResult) -> str:
     digest.update(f"frames:{result.num_frames}:fps:{result.fps!r}".encode())
     for track in result.objects:
         digest.update(f"object:{track.object_id}".encode())
-        names = [f.name for f in fields(track)] if is_dataclass(track) else sorted(vars(track))
-        for name in names:
+        for name in (f.name for f in fields(track)):  # ObjectTrack's fields, in declaration order
             value = getattr(track, name)
             if isinstance(value, np.ndarray):
                 _update_array(digest, name, value)

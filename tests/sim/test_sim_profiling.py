@@ -37,7 +37,7 @@ class _Toy:
 
 
 class _Child(_Toy):
-    pass
+    """Inherits every method of _Toy (a timed inherited method is wrapped on the subclass only)."""
 
 
 _SECTIONS = [(__name__, "_Toy", "outer"), (__name__, "_Toy", "inner"), (__name__, "_Toy", "helper")]
