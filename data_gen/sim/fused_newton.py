@@ -1322,26 +1322,65 @@ def substeps_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Subst
                     ss.tm_now[o, r, a] = wk.tm[o, r, a]
 
 
-@dataclass
 class SubstepResult:
     """What :meth:`FusedNewton.solve_substeps` returns: the padded states and rates (n, 3, K) after the last
     sub-step, the Newton iterations (sub, n_isl), the counters summed over sub-steps and islands, and per
-    sub-step the contact forces at its result (views of buffers the next call overwrites)."""
+    sub-step the contact forces at its result (views of buffers the next call overwrites).
 
-    tm: torch.Tensor
-    tmdot: torch.Tensor
-    iterations: torch.Tensor
-    counters: dict[str, int]
-    forces: list[ContactForces]
-    # the same forces stacked over the sub-steps: (J, n, S, 3) and (J, P, 3)
-    scene_force_n: torch.Tensor
-    scene_normals: torch.Tensor
-    sphere_positions_m: torch.Tensor
-    pair_force_i_n: torch.Tensor
-    pair_normals: torch.Tensor
-    # with pair groups: per sub-step the sums of :data:`SUMS` per object slot (J, n, 10) and per group (J, G, 10)
-    scene_sums: torch.Tensor | None = None
-    pair_sums: torch.Tensor | None = None
+    The forces stacked over the sub-steps: ``scene_force_n``, ``scene_normals``, ``sphere_positions_m``
+    (J, n, S, 3) and ``pair_force_i_n``, ``pair_normals`` (J, P, 3); with pair groups, per sub-step the sums of
+    :data:`SUMS` per object slot ``scene_sums`` (J, n, 10) and per group ``pair_sums`` (J, G, 10), else None.
+    ``forces``: the same per sub-step, as :class:`ContactForces`. A :meth:`part` gathers each of these only when
+    it is read (a step's statistics read three of them, its per-sphere records two more, every few steps)."""
+
+    _STACKED = ("scene_force_n", "scene_normals", "sphere_positions_m", "pair_force_i_n", "pair_normals",
+                "scene_sums", "pair_sums")  # fmt: skip
+
+    def __init__(self, tm: torch.Tensor, tmdot: torch.Tensor, iterations: torch.Tensor, counters: dict[str, int],
+                 scene_force_n: torch.Tensor, scene_normals: torch.Tensor, sphere_positions_m: torch.Tensor,
+                 pair_force_i_n: torch.Tensor, pair_normals: torch.Tensor, scene_sums: torch.Tensor | None = None,
+                 pair_sums: torch.Tensor | None = None) -> None:  # fmt: skip
+        self.tm, self.tmdot, self.iterations, self.counters = tm, tmdot, iterations, counters
+        self._whole = dict(zip(self._STACKED, (scene_force_n, scene_normals, sphere_positions_m, pair_force_i_n,
+                                               pair_normals, scene_sums, pair_sums)))  # fmt: skip
+        self._select: tuple[torch.Tensor, int, int, int, tuple[int, int] | None] | None = None  # a part's rows
+        self._gathered: dict[str, torch.Tensor | None] = {}
+
+    def _field(self, name: str) -> torch.Tensor | None:
+        whole = self._whole[name]
+        if self._select is None or whole is None:
+            return whole
+        if name not in self._gathered:
+            slots, p0, p1, num_sub, groups = self._select
+            if name in ("pair_force_i_n", "pair_normals"):
+                value = whole[:num_sub, p0:p1]
+            elif name == "pair_sums":
+                value = None if groups is None else whole[:num_sub, groups[0]:groups[1]]
+            else:  # per object slot
+                value = whole[:num_sub, slots]
+            self._gathered[name] = value
+        return self._gathered[name]
+
+    scene_force_n = property(lambda self: self._field("scene_force_n"))
+    scene_normals = property(lambda self: self._field("scene_normals"))
+    sphere_positions_m = property(lambda self: self._field("sphere_positions_m"))
+    pair_force_i_n = property(lambda self: self._field("pair_force_i_n"))
+    pair_normals = property(lambda self: self._field("pair_normals"))
+    scene_sums = property(lambda self: self._field("scene_sums"))
+    pair_sums = property(lambda self: self._field("pair_sums"))
+
+    @property
+    def num_substeps(self) -> int:
+        return self.iterations.shape[0]
+
+    @property
+    def forces(self) -> list[ContactForces]:
+        """Per sub-step its :class:`ContactForces` (views of the stacked rows)."""
+        from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
+
+        stacked = (self.scene_force_n, self.scene_normals, self.sphere_positions_m, self.pair_force_i_n,
+                   self.pair_normals)  # fmt: skip
+        return [ContactForces(*(t[j] for t in stacked)) for j in range(self.num_substeps)]
 
     def part(self, slots: torch.Tensor, rows: tuple[int, int], num_sub: int,
              groups: tuple[int, int] | None = None) -> SubstepResult:  # fmt: skip
@@ -1350,24 +1389,18 @@ class SubstepResult:
         all of it, in order). ``iterations`` and ``counters`` stay those of the whole launch."""
         p0, p1 = rows
         n = self.tm.shape[0]
-        whole_groups = groups is None or self.pair_sums is None or groups == (0, self.pair_sums.shape[1])
-        if whole_groups and (p0, p1, num_sub) == (0, self.pair_force_i_n.shape[1], len(self.forces)) and torch.equal(
-            slots, torch.arange(n, dtype=slots.dtype)
-        ):
+        pair_sums = self._whole["pair_sums"]
+        whole_groups = groups is None or pair_sums is None or groups == (0, pair_sums.shape[1])
+        if (self._select is None and whole_groups
+                and (p0, p1, num_sub) == (0, self._whole["pair_force_i_n"].shape[1], self.num_substeps)
+                and torch.equal(slots, torch.arange(n, dtype=slots.dtype))):  # fmt: skip
             return self
-        from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
-
-        stacked = (
-            self.scene_force_n[:num_sub, slots], self.scene_normals[:num_sub, slots],
-            self.sphere_positions_m[:num_sub, slots], self.pair_force_i_n[:num_sub, p0:p1],
-            self.pair_normals[:num_sub, p0:p1],
-        )  # fmt: skip
-        forces = [ContactForces(*(t[j] for t in stacked)) for j in range(num_sub)]  # views of the stacked rows
-        return SubstepResult(
-            self.tm[slots], self.tmdot[slots], self.iterations[:num_sub], self.counters, forces, *stacked,
-            None if self.scene_sums is None else self.scene_sums[:num_sub, slots],
-            None if self.pair_sums is None or groups is None else self.pair_sums[:num_sub, groups[0]:groups[1]],
-        )  # fmt: skip
+        if self._select is not None:
+            raise ValueError("SubstepResult.part: a part cannot be split again")
+        out = SubstepResult(self.tm[slots], self.tmdot[slots], self.iterations[:num_sub], self.counters,
+                            *(self._whole[name] for name in self._STACKED))  # fmt: skip
+        out._select = (slots, p0, p1, num_sub, groups)
+        return out
 
 
 def _identity_c(model: Model) -> torch.Tensor:
@@ -1868,15 +1901,8 @@ class FusedNewton:
             "trust_limited_steps": totals[TRUST_LIMITED],
             "unconverged_solves": sum(count) - totals[CONVERGED],
         }
-        from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
-
-        forces = [
-            ContactForces(self.sub_scene_force[j], self.sub_scene_normal[j], self.sub_sphere_x[j],
-                          self.sub_pair_force[j, :p], self.sub_pair_normal[j, :p])  # fmt: skip
-            for j in range(num_sub)
-        ]
         return SubstepResult(
-            self.tm_now.clone(), self.tmdot.clone(), out[:, :, ITERATIONS], counters, forces,
+            self.tm_now.clone(), self.tmdot.clone(), out[:, :, ITERATIONS], counters,
             self.sub_scene_force[:num_sub], self.sub_scene_normal[:num_sub], self.sub_sphere_x[:num_sub],
             self.sub_pair_force[:num_sub, :p], self.sub_pair_normal[:num_sub, :p], scene_sums, pair_sums,
         )  # fmt: skip
@@ -1906,7 +1932,9 @@ class FusedNewton:
         like = dict(dtype=self.q.dtype, device=self.q.device)
         n, s = self.sphere_x.shape[:2]
         capacity = len(self.pair_mu)
-        count = num_sub
+        # at least twice the rows held so far (a pile's sub-steps climb 1, 2, 3, ... as it falls: one
+        # reallocation, and its dozen warp views, per doubling rather than per new count)
+        count = max(num_sub, 2 * have, 4)
         ss = Substeps()
         # the per-sub-step outputs are left uninitialised: _final_forces writes every entry a caller reads (each
         # sphere of an island's objects, each pair of its range, in each of its sub-steps) before it is read, and

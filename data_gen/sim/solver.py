@@ -1044,23 +1044,24 @@ class ImplicitEulerSolver:
         starts the records of ``objects`` anew, so theirs are the last sub-step's; a sleeping partner collects
         the pair forces of every sub-step, in order, so earlier sub-steps add only their pairs with a sleeping
         side j."""
-        last = len(result.forces) - 1
+        last = result.num_substeps - 1
         asleep_j = self.state.asleep[ps.obj_j]  # (P,) bool
         any_asleep_j = bool(asleep_j.any())
-        for j, forces in enumerate(result.forces):
+        for j in range(last + 1):  # (the two stacked forces it reads, not every field of result.forces)
             if j == last:  # the records start from this sub-step's scene forces
-                force = forces.scene_force_n * sphere_valid[:, :, None]
+                force = result.scene_force_n[j] * sphere_valid[:, :, None]
                 self._start_sphere_records(objects, force, force.norm(dim=2))
             if not len(asleep_j) or (j < last and not any_asleep_j):  # earlier sub-steps: sleeping partners only
                 continue
-            live = (forces.pair_force_i_n != 0).any(1)
+            pair_force = result.pair_force_i_n[j]
+            live = (pair_force != 0).any(1)
             if j < last:
                 live = live & torch.from_numpy(asleep_j)
             rows = torch.nonzero(live)[:, 0]
             if len(rows):
                 r = rows.numpy()
                 self._accumulate_pair_forces(ps.obj_i[r], ps.loc_i[r], ps.obj_j[r], ps.loc_j[r], None, None,
-                                             forces.pair_force_i_n[rows], None, h_s, None, None)  # fmt: skip
+                                             pair_force[rows], None, h_s, None, None)  # fmt: skip
 
     def _start_sphere_records(self, objects: list[int], force: torch.Tensor, magnitude: torch.Tensor) -> None:
         """:meth:`SimBody.reset_step_forces` of ``objects`` at once, from their scene forces (n, S, 3) N and
