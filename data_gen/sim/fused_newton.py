@@ -1369,6 +1369,15 @@ class SubstepResult:
     scene_sums = property(lambda self: self._field("scene_sums"))
     pair_sums = property(lambda self: self._field("pair_sums"))
 
+    def scene_force_at(self, j: int) -> torch.Tensor:
+        """Sub-step ``j``'s scene forces (n, S, 3) N of this result's object slots (one row gathered, not all)."""
+        whole = self._whole["scene_force_n"]
+        if self._select is None:
+            return whole[j]
+        if "scene_force_n" in self._gathered:
+            return self._gathered["scene_force_n"][j]
+        return whole[j, self._select[0]]
+
     @property
     def num_substeps(self) -> int:
         return self.iterations.shape[0]

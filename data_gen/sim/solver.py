@@ -1029,7 +1029,7 @@ class ImplicitEulerSolver:
             h,
         )
         last = touching.shape[0] - 1
-        force = result.scene_force_n[last] * sphere_valid[:, :, None]  # (n, S, 3)
+        force = result.scene_force_at(last) * sphere_valid[:, :, None]  # (n, S, 3)
         for slot, o in enumerate(objects):  # what an object that falls asleep now keeps
             b = self.bodies[o]
             b.static_force_n = force[slot, : b.contact.num_points]
@@ -1049,7 +1049,7 @@ class ImplicitEulerSolver:
         any_asleep_j = bool(asleep_j.any())
         for j in range(last + 1):  # (the two stacked forces it reads, not every field of result.forces)
             if j == last:  # the records start from this sub-step's scene forces
-                force = result.scene_force_n[j] * sphere_valid[:, :, None]
+                force = result.scene_force_at(j) * sphere_valid[:, :, None]
                 self._start_sphere_records(objects, force, force.norm(dim=2))
             if not len(asleep_j) or (j < last and not any_asleep_j):  # earlier sub-steps: sleeping partners only
                 continue
