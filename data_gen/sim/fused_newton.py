@@ -1217,8 +1217,12 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
         else:
             xj = st.frozen_x_j[p]
         delta = xi - xj
+        reach = wp.float64(1.5) * h * speeds + reach_g
+        far = (st.radius_sum[p] + reach) * wp.float64(1.000000001)
+        if wp.dot(delta, delta) >= far * far:
+            continue  # beyond the test below with room for round-off: the same decision without a square root
         dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
-        if dist - st.radius_sum[p] >= wp.float64(1.5) * h * speeds + reach_g:
+        if dist - st.radius_sum[p] >= reach:
             continue  # cannot touch within the sub-step
         st.live_order[st.pair_start[isl] + live] = p
         live = live + 1
