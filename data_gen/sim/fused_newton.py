@@ -1257,8 +1257,10 @@ def _force_sums(bd: Bodies, st: StepData, ss: Substeps, isl: int, j: int):
         normal = wp.vec3d(_ZERO, _ZERO, _ZERO)
         weight = _ZERO
         for s in range(ss.valid.shape[1]):
-            if ss.valid[o, s] != 0:
-                f = forces.scene_force[j, o, s]
+            f = forces.scene_force[j, o, s]
+            # most spheres carry no force: adding their zeros would leave every sum as it is (each starts at +0,
+            # and a sum of nonzero terms is never -0), so they are skipped before the square root and the reads
+            if ss.valid[o, s] != 0 and (f[0] != _ZERO or f[1] != _ZERO or f[2] != _ZERO):
                 m = wp.length(f)
                 total = total + f
                 moment = moment + m * forces.sphere_x[j, o, s]
