@@ -2,8 +2,8 @@
 
 * Static scene: sphere i (centre x_i, radius r_i) penetrates by ``d_i = r_i - sdf(x_i)``; the penalty
   energy is ``k/2 d_i^2`` for ``d_i > 0`` (C1, Gauss-Newton Hessian ``k n n^T``).
-* Object-object: candidate pairs come from a ``wp.HashGrid`` over all cubature points, rebuilt every
-  step and grouped by object (a sphere visits only other objects' spheres); pair (i, j) penetrates by
+* Object-object: candidate pairs come from a grid over each object's bounding box (:class:`PairFinder`),
+  rebuilt every step (a sphere visits only other objects' spheres); pair (i, j) penetrates by
   ``d = r_i + r_j - |x_i - x_j|`` with energy ``k/2 d^2`` (Hessian ``k n n^T``, the negative curvature
   term dropped so it stays PSD).
 * Friction: lagged, smoothed Coulomb.  The normal force ``lam`` and the tangent plane are frozen at the
@@ -73,9 +73,18 @@ def friction_terms(
     return PointContact(float(energy.sum()), grad, hess)
 
 
+@wp.func
+def _cell_of(v: wp.float64, width: wp.float64, count: int):
+    """Cell index along one axis of a coordinate ``v`` (m) from the grid's corner, cells ``width`` wide, clamped to
+    the grid's ``count`` cells (clamping keeps the order of coordinates, so a range of them maps onto a range of
+    cells holding every point between them)."""
+    t = wp.floor(v / width)
+    t = wp.min(wp.max(t, wp.float64(0.0)), wp.float64(count - 1))
+    return int(t)
+
+
 @wp.kernel
 def _candidate_pairs_kernel(
-    grid: wp.uint64,
     points: wp.array(dtype=wp.vec3d),
     object_ids: wp.array(dtype=wp.int32),
     radii: wp.array(dtype=wp.float64),
@@ -85,6 +94,11 @@ def _candidate_pairs_kernel(
     object_reach: wp.array(dtype=wp.float64),
     ordered: int,
     margin: wp.float64,
+    cell_width: wp.float64,
+    grid_dims: wp.array2d(dtype=wp.int32),
+    grid_first: wp.array(dtype=wp.int32),
+    cell_start: wp.array(dtype=wp.int32),
+    cell_points: wp.array(dtype=wp.int32),
     capacity: int,
     count: wp.array(dtype=wp.int32),
     pairs: wp.array(dtype=wp.int32, ndim=2),
@@ -108,20 +122,29 @@ def _candidate_pairs_kernel(
             continue
         if p[2] < lo[2] - r or p[2] > hi[2] + r:
             continue
-        query = wp.hash_grid_query(grid, p, r, c)  # object c's points only
+        # object c's cells within r of p on every axis (its grid starts at its box's corner; the range is grown by a
+        # further relative 1e-6 so that no rounding of the cell arithmetic can leave a partner's cell out)
+        rc = r * wp.float64(1.000001)
+        nx, ny, nz = grid_dims[c, 0], grid_dims[c, 1], grid_dims[c, 2]
+        x0, x1 = _cell_of(p[0] - rc - lo[0], cell_width, nx), _cell_of(p[0] + rc - lo[0], cell_width, nx)
+        y0, y1 = _cell_of(p[1] - rc - lo[1], cell_width, ny), _cell_of(p[1] + rc - lo[1], cell_width, ny)
+        z0, z1 = _cell_of(p[2] - rc - lo[2], cell_width, nz), _cell_of(p[2] + rc - lo[2], cell_width, nz)
         r2 = r * r
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            if j > i:
-                d = points[j] - p
-                dd = wp.dot(d, d)
-                # most points of the visited cells lie beyond r, which bounds every partner's distance (the exact
-                # test below, grown by the relative 1e-9 of r): one read and a squared distance drop them
-                if dd < r2 and wp.sqrt(dd) < radii[i] + radii[j] + margin + point_margins[i] + point_margins[j]:
-                    slot = wp.atomic_add(count, 0, 1)
-                    if slot < capacity:
-                        pairs[slot, 0] = i
-                        pairs[slot, 1] = j
+        for ix in range(x0, x1 + 1):
+            for iy in range(y0, y1 + 1):
+                row = grid_first[c] + (ix * ny + iy) * nz  # cells along z are contiguous: one run of points
+                for k in range(cell_start[row + z0], cell_start[row + z1 + 1]):
+                    j = cell_points[k]
+                    if j > i:
+                        d = points[j] - p
+                        dd = wp.dot(d, d)
+                        # most points of the visited cells lie beyond r, which bounds every partner's distance (the
+                        # exact test below, grown by the relative 1e-9 of r): one read and a squared distance drop them
+                        if dd < r2 and wp.sqrt(dd) < radii[i] + radii[j] + margin + point_margins[i] + point_margins[j]:
+                            slot = wp.atomic_add(count, 0, 1)
+                            if slot < capacity:
+                                pairs[slot, 0] = i
+                                pairs[slot, 1] = j
 
 
 def _boxes_within_reach(lo: np.ndarray, hi: np.ndarray, reach: np.ndarray, margin_m: float) -> bool:
@@ -142,7 +165,7 @@ class _ObjectTable:
 
     Attributes:
         object_ids, radii_m: the arrays as passed (copies).
-        dense: (n,) object index 0..m-1 per point on the device (int32, the grid's groups).
+        dense: (n,) object index 0..m-1 per point on the device (int32); ``dense_np`` the same on the host.
         radii: (n,) radii on the device, m.
         ordered: whether ``dense`` ascends with the point index.
         order: (n,) the points sorted by object (stable); starts: (m,) where each object starts in it.
@@ -151,6 +174,7 @@ class _ObjectTable:
     object_ids: np.ndarray
     radii_m: np.ndarray
     dense: wp.array
+    dense_np: np.ndarray
     radii: wp.array
     ordered: bool
     order: np.ndarray
@@ -169,28 +193,56 @@ class _ObjectTable:
 
 
 class PairFinder:
-    """Broad phase over all cubature spheres with a warp hash grid (rebuilt on every call).
+    """Broad phase over all cubature spheres, with a grid of cells over each object's bounding box (rebuilt on every
+    call).
 
-    The grid is grouped by object: a sphere queries only the objects whose bounding box, grown by its reach,
-    it lies in, and visits only their spheres, never its own object's; its query radius is its own radius and
-    margins plus the largest radius and margin of that object (not of all spheres).  The object ids and radii
-    are uploaded again only when they change (a solver passes the same arrays every step).
+    A sphere queries only the objects whose bounding box, grown by its reach, it lies in, and visits only the
+    cells of that object's grid within its query radius, never its own object's; the radius is its own radius and
+    margins plus the largest radius and margin of that object (not of all spheres). Cells are ``cell_fraction``
+    of the largest query radius wide (wider where the grids would otherwise hold more than
+    ``max_cells_per_point`` cells per sphere). Each object's grid holds only its own points, so no two places
+    share a cell; building it is a sort of the points by cell on the host. The object ids and radii are uploaded
+    again only when they change (a solver passes the same arrays every step)."""
 
-    ``grid_dim`` cells per axis: cells farther apart share a slot of the grid (the distance test drops their
-    points), and every build clears all ``grid_dim**3`` slots. 32 builds in half the time of 64 (0.21 against
-    0.42 ms for 2,500 points) and its searches find the same pairs as fast on the bench's piles of 10 to 50 boxes.
-    """
-
-    def __init__(self, device: str = "cpu", grid_dim: int = 32) -> None:
+    def __init__(self, device: str = "cpu", cell_fraction: float = 0.25, max_cells_per_point: float = 8.0) -> None:
         self.device = device
+        self.cell_fraction = float(cell_fraction)
+        self.max_cells_per_point = float(max_cells_per_point)
         wp.init()
-        self.grid = wp.HashGrid(grid_dim, grid_dim, grid_dim, device=device, dtype=wp.float64)
         self.capacity = 1024
         self._count = wp.zeros(1, dtype=wp.int32, device=device)
         self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=device)
         self._objects: _ObjectTable | None = None
         # per input name: a device array kept between calls and, on CPU, the numpy view it is written through
         self._staged: dict[str, tuple[wp.array, np.ndarray | None]] = {}
+        self.builds = 0  # grids built (calls whose objects were apart build none)
+
+    def build_cells(self, x: np.ndarray, objects: _ObjectTable, lo: np.ndarray, hi: np.ndarray,
+                    width_m: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+        """Each object's grid over its box ``lo``..``hi`` (m, 3) (m): cells ``width_m`` wide or wider (see the
+        class), numbered object by object, z varying fastest (a row of z cells is contiguous). Returns the cell
+        width (m), the grids' cell counts per axis (m, 3), each object's first cell (m,), each cell's first point in
+        the sorted order (cells + 1,), and the points sorted by cell (n,)."""
+        self.builds += 1
+        obj = objects.dense_np
+        extent = hi - lo  # (m, 3) m
+        limit = max(64.0, self.max_cells_per_point * len(x))
+        while True:
+            dims = np.floor(extent / width_m).astype(np.int64) + 1
+            cells = int(dims.prod(1).sum())
+            if cells <= limit:
+                break
+            width_m *= max(1.05, (cells / limit) ** (1.0 / 3.0))
+        first = np.zeros(len(dims) + 1, dtype=np.int64)
+        np.cumsum(dims.prod(1), out=first[1:])
+        d = dims[obj]  # (n, 3)
+        cell = np.minimum(np.floor((x - lo[obj]) / width_m).astype(np.int64), d - 1)
+        flat = first[obj] + (cell[:, 0] * d[:, 1] + cell[:, 1]) * d[:, 2] + cell[:, 2]
+        # (the order within a cell is free: the pairs come out sorted. 16-bit keys take numpy's radix sort)
+        order = np.argsort(flat.astype(np.uint16) if cells <= 65536 else flat, kind="stable")
+        start = np.zeros(cells + 1, dtype=np.int64)
+        np.cumsum(np.bincount(flat, minlength=cells), out=start[1:])
+        return width_m, dims, first[:-1], start, order
 
     def _object_table(self, object_ids: np.ndarray, radii_m: np.ndarray) -> _ObjectTable:
         if self._objects is not None and self._objects.matches(object_ids, radii_m):
@@ -204,6 +256,7 @@ class PairFinder:
             np.array(object_ids, copy=True),
             radii.copy(),
             wp.array(dense, dtype=wp.int32, device=self.device),
+            dense.astype(np.int64),
             wp.array(radii, dtype=wp.float64, device=self.device),
             ordered,
             order,
@@ -236,7 +289,9 @@ class PairFinder:
         if not _boxes_within_reach(lo_np, hi_np, reach, margin_m):  # objects apart (in flight): no search
             return np.zeros((0, 2), dtype=np.int64)
         pts = self._stage("points", x, wp.vec3d)
-        self.grid.build(pts, query_radius, groups=objects.dense)  # cells as wide as the largest query
+        width_m, dims, first, start, order = self.build_cells(x, objects, lo_np, hi_np, self.cell_fraction * query_radius)
+        grid = [self._stage_ints(name, values) for name, values in
+                (("grid_dims", dims), ("grid_first", first), ("cell_start", start), ("cell_points", order))]  # fmt: skip
         lo, hi = self._stage("box_lo", lo_np, wp.vec3d), self._stage("box_hi", hi_np, wp.vec3d)
         extra_wp, reach_wp = self._stage("margins", extra, wp.float64), self._stage("reach", reach, wp.float64)
         while True:
@@ -245,7 +300,6 @@ class PairFinder:
                 _candidate_pairs_kernel,
                 dim=n,
                 inputs=[
-                    self.grid.id,
                     pts,
                     objects.dense,
                     objects.radii,
@@ -255,6 +309,8 @@ class PairFinder:
                     reach_wp,
                     int(objects.ordered),
                     wp.float64(margin_m),
+                    wp.float64(width_m),
+                    *grid,
                     self.capacity,
                 ],
                 outputs=[self._count, self._pairs],
@@ -270,6 +326,29 @@ class PairFinder:
         # which the stable sort (a merge sort over runs) orders in half the time of the default one
         key = np.sort(out[:, 0] * n + out[:, 1], kind="stable")
         return np.stack(np.divmod(key, n), axis=1)
+
+    def _stage_ints(self, name: str, values: np.ndarray) -> wp.array:
+        """:meth:`_stage` of integer ``values`` (n,) or (n, k) as int32, in an array kept while the shape stays (a
+        1-D one also while it is long enough: the kernel reads only the first n entries of ``cell_start``, and a
+        new warp array or view per call costs more than the copy)."""
+        values = np.asarray(values)
+        kept = self._staged.get(name)
+        grow = values.ndim == 1 and kept is not None and kept[0].ndim == 1 and kept[0].shape[0] >= values.shape[0]
+        if kept is None or not (grow or kept[0].shape == values.shape):
+            shape = (max(values.shape[0], 2 * (kept[0].shape[0] if kept is not None and kept[0].ndim == 1 else 0)),)
+            shape = shape if values.ndim == 1 else values.shape
+            array = wp.zeros(shape, dtype=wp.int32, device=self.device)
+            kept = self._staged[name] = (array, array.numpy() if self.device == "cpu" else None)
+        array, host = kept
+        if host is not None:
+            host[: values.shape[0]] = values
+        elif values.shape == tuple(array.shape):
+            array.assign(np.ascontiguousarray(values, dtype=np.int32))
+        else:
+            padded = np.zeros(array.shape, dtype=np.int32)
+            padded[: values.shape[0]] = values
+            array.assign(padded)
+        return array
 
     def _stage(self, name: str, values: np.ndarray, dtype) -> wp.array:
         """``values`` (float64) in the finder's device array ``name`` (kept between calls and reallocated only when

@@ -63,44 +63,43 @@ def test_broad_phase_of_objects_apart_skips_the_search_and_finds_exactly_the_clo
     radii = rng.uniform(0.002, 0.01, 110)
     margins = rng.uniform(0.0, 0.02, 110)
     finder = PairFinder()
-    builds = {"n": 0}
-    build = finder.grid.build
-
-    def counted(*args, **kwargs):
-        builds["n"] += 1
-        return build(*args, **kwargs)
-
-    finder.grid.build = counted
+    builds = finder.builds
     found_any = []
     for offset in np.linspace(0.4, 0.05, 36):
         points = np.r_[a, b + np.array([offset, 0.0, 0.0])]
-        before = builds["n"]
+        before = finder.builds
         found = finder.find(points, ids, radii, 0.003, margins)
         np.testing.assert_array_equal(found, brute_force_pairs(points, ids, radii, 0.003, margins))
         gap = (b[:, 0] + offset).min() - a[:, 0].max()  # the boxes' gap along x (they overlap in y, z)
         if gap >= (radii.max() + margins.max()) * 2 + 0.003 + 1e-6:
-            assert builds["n"] == before and len(found) == 0  # apart: no search
+            assert finder.builds == before and len(found) == 0  # apart: no search
         found_any.append(len(found) > 0)
     assert found_any[0] is False and found_any[-1] is True  # the sweep crossed from apart to touching
-    assert builds["n"] > 0
+    assert finder.builds > builds
 
 
-def test_broad_phase_over_more_cells_than_the_grid_has_finds_exactly_the_close_pairs():
-    """A row of objects 3 m long is about 150 query radii: far more cells than the hash grid's 32 per axis, so
-    cells far apart share a slot. Their points meet in the search and the distance test drops them: the pairs
-    equal the brute-force ones."""
+@pytest.mark.parametrize("cell_fraction", [0.25, 1.0, 3.0])
+def test_broad_phase_with_its_cells_widened_finds_exactly_the_close_pairs(cell_fraction):
+    """A row of 40 objects 3 m long, cells a quarter of, as wide as or three times the query radius: with a tenth
+    of a cell per sphere allowed, the cells grow wider (the search visits more points, the distance test drops
+    them) and the pairs still equal the brute-force ones; with the default cell budget too."""
     rng = np.random.default_rng(11)
     count = 40
     ids = np.repeat(np.arange(count), 30)
     centres = np.stack([np.linspace(0.0, 3.0, count), np.zeros(count), np.zeros(count)], 1)
     points = centres[ids] + rng.normal(scale=0.025, size=(len(ids), 3))
     radii = rng.uniform(0.004, 0.008, len(ids))
-    finder = PairFinder(grid_dim=32)
-    found = finder.find(points, ids, radii, 0.004)
     expected = brute_force_pairs(points, ids, radii, 0.004, None)
     assert len(expected) > 50
-    assert np.ptp(points[found[:, 0], 0]) > 2.5  # close pairs all along the row
-    np.testing.assert_array_equal(found, expected)
+    for budget in (0.1, 8.0):
+        finder = PairFinder(cell_fraction=cell_fraction, max_cells_per_point=budget)
+        width, dims, *_ = finder.build_cells(points, finder._object_table(ids, radii), *(
+            np.stack([f(points[ids == k], axis=0) for k in range(count)]) for f in (np.min, np.max)), 0.04)  # fmt: skip
+        assert dims.prod(1).sum() <= max(64, budget * len(points))
+        assert (width > 0.04) == (budget < 1.0)  # only the small budget widens the 4 cm cells
+        found = finder.find(points, ids, radii, 0.004)
+        assert np.ptp(points[found[:, 0], 0]) > 2.5  # close pairs all along the row
+        np.testing.assert_array_equal(found, expected)
 
 
 def test_broad_phase_of_one_object_is_empty():
