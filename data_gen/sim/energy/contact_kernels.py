@@ -435,6 +435,10 @@ class ContactOutputs:
     pair_normals: torch.Tensor
 
 
+# the pair buffers' first capacity (about 0.75 MB of buffers; a ten-box pile needs up to ~20k pairs)
+_MIN_PAIR_CAPACITY = 4096
+
+
 class WarpContact:
     """The contact terms of a fixed set of objects and islands on warp, reused by every solve of them.
 
@@ -522,9 +526,10 @@ class WarpContact:
         return len(inputs) - 2 - len(self._tail) + offset
 
     def _grow_pairs(self, count: int) -> None:
-        """Pair buffers for at least ``count`` pairs (and at least 4 x the old capacity: every growth rebinds the
-        buffers wherever they are read) and a pair launch recorded over them."""
-        capacity = max(64, 1 << (count - 1).bit_length(), 4 * self._pair_capacity)
+        """Pair buffers for at least ``count`` pairs (and at least 4 x the old capacity, and at least
+        ``_MIN_PAIR_CAPACITY``: every growth rebinds the buffers wherever they are read, and a pile's first steps would
+        otherwise grow them three times over) and a pair launch recorded over them."""
+        capacity = max(_MIN_PAIR_CAPACITY, 1 << (count - 1).bit_length(), 4 * self._pair_capacity)
         zeros, i32 = self._zeros, torch.int32
         ints = [torch.zeros(capacity, dtype=i32, device=self.torch_device) for _ in range(4)]
         vec = [zeros(capacity, 3) for _ in range(4)]  # frozen x_j, normal0, x0_i, x0_j
