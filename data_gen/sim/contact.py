@@ -95,7 +95,7 @@ def _candidate_pairs_kernel(
     ordered: int,
     margin: wp.float64,
     cell_width: wp.float64,
-    grid_dims: wp.array2d(dtype=wp.int32),
+    grid_dims: wp.array(dtype=wp.vec3i),
     grid_first: wp.array(dtype=wp.int32),
     cell_start: wp.array(dtype=wp.int32),
     cell_points: wp.array(dtype=wp.int32),
@@ -125,7 +125,8 @@ def _candidate_pairs_kernel(
         # object c's cells within r of p on every axis (its grid starts at its box's corner; the range is grown by a
         # further relative 1e-6 so that no rounding of the cell arithmetic can leave a partner's cell out)
         rc = r * wp.float64(1.000001)
-        nx, ny, nz = grid_dims[c, 0], grid_dims[c, 1], grid_dims[c, 2]
+        dims = grid_dims[c]
+        nx, ny, nz = dims[0], dims[1], dims[2]
         x0, x1 = _cell_of(p[0] - rc - lo[0], cell_width, nx), _cell_of(p[0] + rc - lo[0], cell_width, nx)
         y0, y1 = _cell_of(p[1] - rc - lo[1], cell_width, ny), _cell_of(p[1] + rc - lo[1], cell_width, ny)
         z0, z1 = _cell_of(p[2] - rc - lo[2], cell_width, nz), _cell_of(p[2] + rc - lo[2], cell_width, nz)
@@ -222,11 +223,12 @@ class PairFinder:
         """Each object's grid over its box ``lo``..``hi`` (m, 3) (m): cells ``width_m`` wide or wider (see the
         class), numbered object by object, z varying fastest (a row of z cells is contiguous). Returns the cell
         width (m), the grids' cell counts per axis (m, 3), each object's first cell (m,), each cell's first point in
-        the sorted order (cells + 1,), and the points sorted by cell (n,)."""
+        the sorted order (``limit + 1``, the cells beyond the grids' own starting at n: one length for every call
+        with n points), and the points sorted by cell (n,)."""
         self.builds += 1
         obj = objects.dense_np
         extent = hi - lo  # (m, 3) m
-        limit = max(64.0, self.max_cells_per_point * len(x))
+        limit = int(max(64.0, self.max_cells_per_point * len(x)))
         while True:
             dims = np.floor(extent / width_m).astype(np.int64) + 1
             cells = int(dims.prod(1).sum())
@@ -240,8 +242,8 @@ class PairFinder:
         flat = first[obj] + (cell[:, 0] * d[:, 1] + cell[:, 1]) * d[:, 2] + cell[:, 2]
         # (the order within a cell is free: the pairs come out sorted. 16-bit keys take numpy's radix sort)
         order = np.argsort(flat.astype(np.uint16) if cells <= 65536 else flat, kind="stable")
-        start = np.zeros(cells + 1, dtype=np.int64)
-        np.cumsum(np.bincount(flat, minlength=cells), out=start[1:])
+        start = np.zeros(limit + 1, dtype=np.int64)
+        np.cumsum(np.bincount(flat, minlength=limit), out=start[1:])
         return width_m, dims, first[:-1], start, order
 
     def _object_table(self, object_ids: np.ndarray, radii_m: np.ndarray) -> _ObjectTable:
@@ -290,8 +292,8 @@ class PairFinder:
             return np.zeros((0, 2), dtype=np.int64)
         pts = self._stage("points", x, wp.vec3d)
         width_m, dims, first, start, order = self.build_cells(x, objects, lo_np, hi_np, self.cell_fraction * query_radius)
-        grid = [self._stage_ints(name, values) for name, values in
-                (("grid_dims", dims), ("grid_first", first), ("cell_start", start), ("cell_points", order))]  # fmt: skip
+        grid = [self._stage("grid_dims", dims, wp.vec3i), self._stage("grid_first", first, wp.int32),
+                self._stage("cell_start", start, wp.int32), self._stage("cell_points", order, wp.int32)]  # fmt: skip
         lo, hi = self._stage("box_lo", lo_np, wp.vec3d), self._stage("box_hi", hi_np, wp.vec3d)
         extra_wp, reach_wp = self._stage("margins", extra, wp.float64), self._stage("reach", reach, wp.float64)
         while True:
@@ -327,33 +329,12 @@ class PairFinder:
         key = np.sort(out[:, 0] * n + out[:, 1], kind="stable")
         return np.stack(np.divmod(key, n), axis=1)
 
-    def _stage_ints(self, name: str, values: np.ndarray) -> wp.array:
-        """:meth:`_stage` of integer ``values`` (n,) or (n, k) as int32, in an array kept while the shape stays (a
-        1-D one also while it is long enough: the kernel reads only the first n entries of ``cell_start``, and a
-        new warp array or view per call costs more than the copy)."""
-        values = np.asarray(values)
-        kept = self._staged.get(name)
-        grow = values.ndim == 1 and kept is not None and kept[0].ndim == 1 and kept[0].shape[0] >= values.shape[0]
-        if kept is None or not (grow or kept[0].shape == values.shape):
-            shape = (max(values.shape[0], 2 * (kept[0].shape[0] if kept is not None and kept[0].ndim == 1 else 0)),)
-            shape = shape if values.ndim == 1 else values.shape
-            array = wp.zeros(shape, dtype=wp.int32, device=self.device)
-            kept = self._staged[name] = (array, array.numpy() if self.device == "cpu" else None)
-        array, host = kept
-        if host is not None:
-            host[: values.shape[0]] = values
-        elif values.shape == tuple(array.shape):
-            array.assign(np.ascontiguousarray(values, dtype=np.int32))
-        else:
-            padded = np.zeros(array.shape, dtype=np.int32)
-            padded[: values.shape[0]] = values
-            array.assign(padded)
-        return array
-
     def _stage(self, name: str, values: np.ndarray, dtype) -> wp.array:
-        """``values`` (float64) in the finder's device array ``name`` (kept between calls and reallocated only when
-        the length changes: a new warp array per call costs more than the copy), as warp ``dtype``."""
-        values = np.asarray(values, dtype=np.float64)
+        """``values`` (n,) or (n, 3) in the finder's device array ``name`` of warp ``dtype`` (float64 or int32
+        scalars or 3-vectors), kept between calls and reallocated only when the length changes: a new warp array per
+        call costs more than the copy."""
+        np_dtype = np.int32 if dtype in (wp.int32, wp.vec3i) else np.float64
+        values = np.asarray(values)
         length = values.shape[0]
         kept = self._staged.get(name)
         if kept is None or kept[0].shape[0] != length:
@@ -363,7 +344,7 @@ class PairFinder:
         if host is not None:
             np.copyto(host, values)
         else:
-            array.assign(np.ascontiguousarray(values))
+            array.assign(np.ascontiguousarray(values, dtype=np_dtype))
         return array
 
 

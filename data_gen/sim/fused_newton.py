@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -1377,12 +1376,9 @@ class SubstepResult:
 
     def scene_force_at(self, j: int) -> torch.Tensor:
         """Sub-step ``j``'s scene forces (n, S, 3) N of this result's object slots (one row gathered, not all)."""
-        whole = self._whole["scene_force_n"]
-        if self._select is None:
-            return whole[j]
-        if "scene_force_n" in self._gathered:
-            return self._gathered["scene_force_n"][j]
-        return whole[j, self._select[0]]
+        if self._select is None or "scene_force_n" in self._gathered:
+            return self.scene_force_n[j]
+        return self._whole["scene_force_n"][j, self._select[0]]
 
     @property
     def num_substeps(self) -> int:
