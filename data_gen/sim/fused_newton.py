@@ -46,6 +46,7 @@ from data_gen.sim.energy.elastic_kernel import (
     not_positive_definite,
     projected_neo_hookean_hessian,
 )
+from data_gen.sim.lapack import CholeskyDirections
 from data_gen.sim.model import DofLayout, Model
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings, cholesky_direction
 from data_gen.sim.static_scene import _FAR_M, boxes_distance, points_distance
@@ -1537,6 +1538,7 @@ class FusedNewton:
         self._value = torch.zeros(layout.num_islands, dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self._flagged = torch.zeros(layout.num_islands, dtype=torch.int32, device=model.mass_kg.device)
         self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
+        self._directions = CholeskyDirections()  # solve_split's host factorisations (LAPACK in place)
         self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
         self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)
@@ -1832,19 +1834,24 @@ class FusedNewton:
         grad = self.grad.view(n_isl, size)
         status = self.stats[:, STATUS]  # (a view: what the last launch left)
         hess = ev.hess
+        directions = self._directions
+        summed = directions.sum_buffer(n_isl, size) if directions.available else None
+        running = [True] * n_isl
         for _ in range(settings.iterations):
-            dq, ok = cholesky_direction(hess, grad)
-            # an island that has stopped keeps its last matrix: only the running ones must factorise
-            if ok is not None and not bool((ok | (status != RUNNING)).all()):
-                return None  # minimise projects every elastic block of such an island
-            self.dq.copy_(dq.reshape(-1))
+            # an island that has stopped keeps its last matrix: only the running ones need a direction
+            if not directions.solve(hess, grad, self.dq.view(n_isl, size), running):
+                dq, ok = cholesky_direction(hess, grad)  # (with its ridge where a matrix is not positive definite)
+                if ok is not None and not bool((ok | (status != RUNNING)).all()):
+                    return None  # minimise projects every elastic block of such an island
+                self.dq.copy_(dq.reshape(-1))
             launch.launch()
             codes = status.tolist()  # one host read per iteration
             if NEEDS_FALLBACK in codes:
                 return None
             if RUNNING not in codes:
                 break
-            hess = torch.add(base, self.hess.view(n_isl, size, size))
+            running = [code == RUNNING for code in codes]
+            hess = torch.add(base, self.hess.view(n_isl, size, size), out=summed)
         return self._result(host_evaluations=1)  # (the objective's first evaluation)
 
     def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],

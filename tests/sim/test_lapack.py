@@ -1,0 +1,67 @@
+"""The in-place LAPACK Newton directions (:mod:`data_gen.sim.lapack`): torch.linalg's bits, analytic values,
+and the cases they hand back to torch.linalg."""
+
+import pytest
+import torch
+
+from data_gen.sim.lapack import CholeskyDirections, lapack_routines, torch_direction
+
+needs_lapack = pytest.mark.skipif(lapack_routines() is None, reason="torch's CPU library exports no dpotrf/dpotrs")
+
+
+def _spd(n_isl: int, size: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    a = torch.randn(n_isl, size, size, dtype=torch.float64, generator=generator)
+    hess = a @ a.mT + 1e-3 * torch.eye(size, dtype=torch.float64)
+    hess = hess + 1e-10 * torch.randn(hess.shape, dtype=torch.float64, generator=generator)  # not exactly symmetric
+    return hess, torch.randn(n_isl, size, dtype=torch.float64, generator=generator)
+
+
+@needs_lapack
+@pytest.mark.parametrize("n_isl,size", [(1, 240), (3, 48), (2, 96)])
+def test_directions_are_torch_linalg_bit_for_bit(n_isl, size):
+    hess, grad = _spd(n_isl, size, seed=size)
+    out = torch.full((n_isl, size), float("nan"), dtype=torch.float64)
+    assert CholeskyDirections().solve(hess, grad, out, [True] * n_isl)
+    assert torch.equal(out, torch_direction(hess, grad))
+    assert torch.allclose(hess @ out[:, :, None], -grad[:, :, None], rtol=0, atol=1e-6)  # it solves the system
+
+
+@needs_lapack
+def test_direction_of_a_diagonal_system_is_exact():
+    # square diagonal entries: the factor and both triangular solves are exact
+    hess = torch.diag(torch.tensor([4.0, 16.0, 0.25], dtype=torch.float64))[None]
+    out = torch.empty(1, 3, dtype=torch.float64)
+    assert CholeskyDirections().solve(hess, torch.tensor([[4.0, 32.0, -0.25]], dtype=torch.float64), out, [True])
+    assert out.tolist() == [[-1.0, -2.0, 1.0]]
+
+
+@needs_lapack
+def test_only_wanted_islands_are_solved_and_buffers_are_reused():
+    hess, grad = _spd(3, 12, seed=1)
+    hess[1] = -torch.eye(12, dtype=torch.float64)  # indefinite, but not wanted: never factorised
+    out = torch.full((3, 12), 7.0, dtype=torch.float64)
+    directions = CholeskyDirections()
+    assert directions.solve(hess, grad, out, [True, False, True])
+    expected = torch_direction(hess[[0, 2]], grad[[0, 2]])
+    assert torch.equal(out[[0, 2]], expected)
+    assert directions.sum_buffer(3, 12) is directions.sum_buffer(3, 12)  # kept per shape
+    assert directions.sum_buffer(3, 12).shape == (3, 12, 12)
+
+
+@needs_lapack
+def test_an_indefinite_wanted_matrix_is_handed_back():
+    hess, grad = _spd(2, 6, seed=2)
+    hess[1, 3, 3] = -50.0
+    before = hess.clone()
+    out = torch.empty(2, 6, dtype=torch.float64)
+    assert not CholeskyDirections().solve(hess, grad, out, [True, True])
+    assert torch.equal(hess, before)  # the caller's matrix is untouched: its torch.linalg fallback reads it
+
+
+def test_tensors_the_routines_cannot_take_are_handed_back():
+    hess, grad = _spd(1, 8, seed=3)
+    directions = CholeskyDirections()
+    out = torch.empty(1, 8, dtype=torch.float64)
+    assert not directions.solve(hess.float(), grad.float(), out.float(), [True])  # float32
+    assert not directions.solve(hess.mT, grad, out, [True])  # not contiguous
