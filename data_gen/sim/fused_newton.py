@@ -1809,8 +1809,11 @@ class FusedNewton:
         base = objective.kept_matrix
         if base is None or not bool(torch.isfinite(ev.grad).all() & torch.isfinite(ev.value).all()):
             return None
-        st = self._step_data(objective)
-        self._bound_objective, self._bound_step = objective, st  # evaluate_bound reads the same step data
+        if self._bound_objective is objective:  # bound by the first evaluation (evaluate_bound)
+            st = self._bound_step
+        else:
+            st = self._step_data(objective)
+            self._bound_objective, self._bound_step = objective, st  # evaluate_bound reads the same step data
         self.q.copy_(q0.reshape(-1))
         self.grad.copy_(ev.grad.reshape(-1))
         self._island_outputs()
@@ -1838,8 +1841,12 @@ class FusedNewton:
         summed = directions.sum_buffer(n_isl, size) if directions.available else None
         running = [True] * n_isl
         for _ in range(settings.iterations):
-            # an island that has stopped keeps its last matrix: only the running ones need a direction
-            if not directions.solve(hess, grad, self.dq.view(n_isl, size), running):
+            # an island that has stopped keeps its last matrix: only the running ones need a direction; the
+            # matrices summed here are factorised in place (the first, the evaluation's, on a copy)
+            in_place = hess is summed
+            if not directions.solve(hess, grad, self.dq.view(n_isl, size), running, overwrite=in_place):
+                if in_place:  # the failed factorisation consumed the sum: formed again for the ridge path
+                    hess = torch.add(base, self.hess.view(n_isl, size, size), out=summed)
                 dq, ok = cholesky_direction(hess, grad)  # (with its ridge where a matrix is not positive definite)
                 if ok is not None and not bool((ok | (status != RUNNING)).all()):
                     return None  # minimise projects every elastic block of such an island
@@ -1988,8 +1995,8 @@ class FusedNewton:
         ss.h, ss.num_sub = arrays["sub_h"], arrays["sub_count"]
 
     def forces(self) -> ContactForces:
-        """The contact forces of the last :meth:`solve`'s result (it must have returned a result): what
-        :meth:`StepObjective.forces` computes at that state, from one launch over the islands."""
+        """The contact forces of the last :meth:`solve`'s or :meth:`solve_split`'s result (it must have returned
+        a result): what :meth:`StepObjective.forces` computes at that state, from one launch over the islands."""
         from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
         n_isl, _ = self.shape

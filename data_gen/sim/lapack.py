@@ -1,15 +1,17 @@
 """Newton directions by LAPACK's Cholesky routines of torch's own CPU library, called in place.
 
 ``torch.linalg.cholesky_ex`` copies its input into a new column-major matrix, calls LAPACK's ``dpotrf``, then
-clears the other triangle; two ``torch.linalg.solve_triangular`` calls follow. For a soft island's 240-unknown
-matrix, factorised once per Newton iteration, the copy, the clearing and the new tensors cost about a fifth of
-the work (294 against 238 us per direction on this project's 2-core machines). :class:`CholeskyDirections`
-calls the same library's ``dpotrf`` and ``dpotrs`` on buffers kept between calls instead: a symmetric matrix
-stored row by row is its own column-major layout, so no copy is needed, and ``dpotrs`` reads only the factor's
-triangle. The routines are those torch itself calls on these matrices, so the factors and directions are
-the same bit for bit (checked on every matrix of a ``soft_5`` run, and by :func:`lapack_routines` once per
+clears the other triangle; two ``torch.linalg.solve_triangular`` calls follow, and the solver symmetrised the
+matrix before all that. For a soft island's 240-unknown matrix, factorised once per Newton iteration, those
+passes and new tensors cost a third of the work. :class:`CholeskyDirections` calls the same library's
+``dpotrf`` and ``dpotrs`` on the matrix in place (or on one copy of it) instead. A matrix stored row by row is
+read by ``dpotrf`` as its transpose, and ``dpotrf`` reads one triangle only: the factor is that of the
+symmetric matrix whose entries are the row-major upper triangle of the given one. The solver's matrices are
+symmetric but for round-off (``|H - H^T| <= 7e-17 max |H|`` over the matrices of a ``soft_5`` run), so that
+is their symmetric part to round-off, and for an exactly symmetric matrix it is :func:`torch_direction`'s
+result bit for bit (the routines are the ones torch calls). :func:`lapack_routines` checks that once per
 process on a test matrix: where torch's library lacks the routines or differs, they are not used and the
-caller keeps ``torch.linalg``).
+caller keeps ``torch.linalg``.
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ _DTYPE = torch.float64
 @functools.lru_cache(maxsize=1)
 def lapack_routines() -> tuple[ctypes._CFuncPtr, ctypes._CFuncPtr] | None:
     """``(dpotrf_, dpotrs_)`` of the LAPACK linked into torch's CPU library, or None where that library does not
-    export them or their direction on a test matrix differs from :func:`torch_direction`'s in any bit."""
+    export them or their direction for an exactly symmetric test matrix differs from :func:`torch_direction`'s
+    in any bit."""
     path = os.path.join(os.path.dirname(torch.__file__), "lib", "libtorch_cpu.so")
     try:
         library = ctypes.CDLL(path)
@@ -39,10 +42,10 @@ def lapack_routines() -> tuple[ctypes._CFuncPtr, ctypes._CFuncPtr] | None:
     generator = torch.Generator().manual_seed(0)
     a = torch.randn(1, 13, 13, dtype=_DTYPE, generator=generator)
     hess = a @ a.mT + 0.1 * torch.eye(13, dtype=_DTYPE)
-    hess[0, 0, 1] += 1e-9  # not exactly symmetric, as the solver's matrices are not
+    hess = torch.add(hess, hess.mT).mul_(0.5)  # exactly symmetric
     grad = torch.randn(1, 13, dtype=_DTYPE, generator=generator)
     out = torch.empty(1, 13, dtype=_DTYPE)
-    if not _solve(routines, hess, grad, out, torch.empty_like(hess), [True]):
+    if not _factor_and_solve(routines, hess.clone(), grad, out, [True]):
         return None
     return routines if torch.equal(out, torch_direction(hess, grad)) else None
 
@@ -56,20 +59,26 @@ def torch_direction(hess: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
     return torch.linalg.solve_triangular(chol.mT, y, upper=True)[:, :, 0].neg_()
 
 
-def _solve(routines, hess: torch.Tensor, grad: torch.Tensor, out: torch.Tensor, sym: torch.Tensor,
-           wanted: Sequence[bool]) -> bool:  # fmt: skip
-    """``out[i] = -H_i^-1 g_i`` for the islands ``i`` with ``wanted[i]``, in place (``sym``: a scratch matrix
-    buffer shaped like ``hess``). False as soon as one of those matrices is not positive definite."""
+def upper_symmetric(hess: torch.Tensor) -> torch.Tensor:
+    """The symmetric matrices (n, N, N) whose entries are ``hess``'s row-major upper triangles: what
+    :class:`CholeskyDirections` factorises."""
+    upper = torch.triu(hess)
+    return upper + torch.triu(hess, diagonal=1).mT
+
+
+def _factor_and_solve(routines, matrices: torch.Tensor, grad: torch.Tensor, out: torch.Tensor,
+                      wanted: Sequence[bool]) -> bool:  # fmt: skip
+    """``out[i] = -H_i^-1 g_i`` for the islands ``i`` with ``wanted[i]``, ``H_i`` factorised in place in
+    ``matrices[i]`` (overwritten). False as soon as one of those matrices is not positive definite."""
     dpotrf, dpotrs = routines
-    torch.add(hess, hess.transpose(1, 2), out=sym).mul_(0.5)
     torch.neg(grad, out=out)
-    n = ctypes.c_int(hess.shape[1])
+    n = ctypes.c_int(matrices.shape[1])
     one, info = ctypes.c_int(1), ctypes.c_int(0)
-    lower = ctypes.c_char(b"L")
+    lower = ctypes.c_char(b"L")  # of the column-major matrix LAPACK sees: the row-major upper triangle
     for i, want in enumerate(wanted):
         if not want:
             continue
-        matrix = ctypes.c_void_p(sym[i].data_ptr())
+        matrix = ctypes.c_void_p(matrices[i].data_ptr())
         dpotrf(ctypes.byref(lower), ctypes.byref(n), matrix, ctypes.byref(n), ctypes.byref(info))
         if info.value != 0:
             return False
@@ -83,7 +92,7 @@ def _solve(routines, hess: torch.Tensor, grad: torch.Tensor, out: torch.Tensor, 
 
 class CholeskyDirections:
     """Newton directions ``-H^-1 g`` of a batch of island matrices, written into a caller's buffer, by
-    :func:`lapack_routines` on scratch buffers kept per shape; the same bits as :func:`torch_direction`."""
+    :func:`lapack_routines` (see the module docstring), with scratch buffers kept per shape."""
 
     def __init__(self) -> None:
         self._routines = lapack_routines()
@@ -94,7 +103,8 @@ class CholeskyDirections:
         return self._routines is not None
 
     def sum_buffer(self, n_isl: int, size: int) -> torch.Tensor:
-        """A kept (n_isl, size, size) buffer for the caller's matrix (``torch.add(..., out=)``)."""
+        """A kept (n_isl, size, size) buffer for the caller's matrix (``torch.add(..., out=)``), which
+        :meth:`solve` may then factorise in place (``overwrite``)."""
         return self._buffers(n_isl, size)[0]
 
     def _buffers(self, n_isl: int, size: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -104,19 +114,25 @@ class CholeskyDirections:
             buffers = self._scratch[key] = tuple(torch.empty(n_isl, size, size, dtype=_DTYPE) for _ in range(2))
         return buffers
 
-    def solve(self, hess: torch.Tensor, grad: torch.Tensor, out: torch.Tensor, wanted: Sequence[bool]) -> bool:
+    def solve(self, hess: torch.Tensor, grad: torch.Tensor, out: torch.Tensor, wanted: Sequence[bool],
+              overwrite: bool = False) -> bool:  # fmt: skip
         """``out[i] = -H_i^-1 g_i`` (``hess`` (n, N, N), ``grad`` and ``out`` (n, N), float64, contiguous, on the
-        CPU) for the islands with ``wanted[i]``; the others' rows of ``out`` are left undefined. False, with
-        ``out`` undefined, when the routines are unavailable, the tensors do not suit them, or a wanted matrix
-        is not positive definite: the caller then takes the ``torch.linalg`` path (with its ridge)."""
+        CPU; ``H_i`` :func:`upper_symmetric` of ``hess[i]``) for the islands with ``wanted[i]``; the others' rows
+        of ``out`` are left undefined. ``hess`` is factorised in place with ``overwrite``, else a copy of it.
+        False, with ``out`` (and with ``overwrite`` ``hess``) undefined, when the routines are unavailable, the
+        tensors do not suit them, or a wanted matrix is not positive definite: the caller then takes the
+        ``torch.linalg`` path (with its ridge)."""
         if self._routines is None or not _suits(hess, grad, out):
             return False
-        n_isl, size = grad.shape
-        return _solve(self._routines, hess, grad, out, self._buffers(n_isl, size)[1], wanted)
+        matrices = hess
+        if not overwrite:
+            matrices = self._buffers(*grad.shape)[1]
+            matrices.copy_(hess)
+        return _factor_and_solve(self._routines, matrices, grad, out, wanted)
 
 
 def _suits(*tensors: torch.Tensor) -> bool:
     return all(t.dtype == _DTYPE and t.device.type == "cpu" and t.is_contiguous() for t in tensors)
 
 
-__all__ = ["CholeskyDirections", "lapack_routines", "torch_direction"]
+__all__ = ["CholeskyDirections", "lapack_routines", "torch_direction", "upper_symmetric"]

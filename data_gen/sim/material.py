@@ -214,5 +214,10 @@ def cauchy_stress(F: torch.Tensor, mu: float | torch.Tensor, lam: float | torch.
 
 
 def hydrostatic_stress(F: torch.Tensor, mu: float | torch.Tensor, lam: float | torch.Tensor) -> torch.Tensor:
-    """Signed hydrostatic Cauchy stress tr(sigma) / 3, Pa, shape (n,); negative = compression."""
-    return torch.diagonal(cauchy_stress(F, mu, lam), dim1=1, dim2=2).sum(dim=1) / 3.0
+    """Signed hydrostatic Cauchy stress tr(sigma) / 3, Pa, shape (n,); negative = compression.
+
+    In closed form (one determinant, no 3 x 3 products): with ``sigma = P F^T / J`` and ``cof(F) F^T = J I``,
+    ``tr(sigma) / 3 = mu |F|^2 / (3 J) + lam' (J - 1) - mu``, ``|F|`` the Frobenius norm."""
+    mu_t, lam_s = _lame_tensors(F, mu, lam)
+    det = torch.linalg.det(F)
+    return mu_t * (F * F).sum(dim=(1, 2)) / (3.0 * det) + lam_s * (det - 1.0) - mu_t

@@ -844,7 +844,8 @@ class ImplicitEulerSolver:
             self.counters[f"{kind}_handed_back" if result is None else f"{kind}_island_solves"] += (
                 1 if result is None else len(islands)
             )
-        from_kernel = fused is not None and result is not None  # the recorder reads the forces the kernel computes
+        kernel = fused if fused is not None else split  # the split solve's last state is its workspace's too
+        from_kernel = kernel is not None and result is not None  # the recorder reads the forces the kernel computes
         if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
             result = minimise(objective, q0, objective.motion_scale(), objective.trust_radius(), settings,
                               on_gradient=check_gradient, on_indefinite=indefinite)  # fmt: skip
@@ -858,7 +859,7 @@ class ImplicitEulerSolver:
         for o, q_o, qdot_o in zip(objects, q.split(setup.sizes), qdot.split(setup.sizes)):  # once per solve
             self.state.q[o] = q_o
             self.state.qdot[o] = qdot_o
-        forces = fused.forces() if from_kernel else objective.forces(tm)
+        forces = kernel.forces() if from_kernel else objective.forces(tm)
         self._record_group_forces(objects, forces, ps, objective.pairs, model.sphere_valid, h, stats, supported)
         return int(result.iterations.sum())
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import torch
 
 from data_gen.sim.energy.contact_kernels import WarpContact
-from data_gen.sim.energy.elastic import elastic_from_points, elastic_gradient
+from data_gen.sim.energy.elastic import elastic_from_points, elastic_gradient, elastic_hessian
 from data_gen.sim.energy.elastic_kernel import WarpNeoHookean
 from data_gen.sim.energy.gravity import gravity
 from data_gen.sim.energy.inertia import inertia
@@ -253,12 +253,17 @@ class StepObjective(Objective):
         With ``kernel_evaluation`` (islands of deformable objects), an evaluation without derivatives, and one
         with derivatives once the kept elastic blocks make the matrix's inertia and elastic part constant
         (``lagged_elastic_hessian``), is one launch of the fused kernel (:meth:`FusedNewton.evaluate_bound`):
-        the same terms, summed in another order (about 1e-15 relative)."""
-        if self.evaluator is not None and strict_islands is None and (not derivatives or self._kept_base is not None):
-            value, grad, hess = self.evaluator.evaluate_bound(self, q, derivatives)
-            if not derivatives:
-                return Evaluation(value)
-            return Evaluation(value, grad, torch.add(self._kept_base, hess))
+        the same terms, summed in another order (about 1e-15 relative). With one group of deformable objects
+        the first evaluation with derivatives forms those blocks from the elastic kernel's point Hessians alone
+        (:meth:`_kept_matrix_at`) and launches too; otherwise it takes the batched terms below and keeps them."""
+        if self.evaluator is not None and strict_islands is None:
+            if derivatives and self._kept_base is None and self._keeps_one_elastic_group():
+                self._kept_base = self._kept_matrix_at(q)  # the first evaluation: M + h^2 K formed and kept
+            if not derivatives or self._kept_base is not None:
+                value, grad, hess = self.evaluator.evaluate_bound(self, q, derivatives)
+                if not derivatives:
+                    return Evaluation(value)
+                return Evaluation(value, grad, torch.add(self._kept_base, hess))
         m = self.model
         tm = self.layout.to_objects(q)
         strict = None if strict_islands is None else strict_islands[self.layout.island]
@@ -274,6 +279,20 @@ class StepObjective(Objective):
         if self.evaluator is not None and self._all_elastic_kept(el.hess):
             self._kept_base = base
         return Evaluation(value, grad, torch.add(base, contact.hess))  # contact: h^2
+
+    def _keeps_one_elastic_group(self) -> bool:
+        """Whether the first evaluation with derivatives keeps the whole elastic matrix: one elastic group, of
+        deformable objects, with ``lagged_elastic_hessian``."""
+        return self.lagged_elastic_hessian and len(self.elastic_groups) == 1 and self.elastic_groups[0][1].shape[1] > 1
+
+    def _kept_matrix_at(self, q: torch.Tensor) -> torch.Tensor:
+        """``M + h^2 K`` per island at ``q`` (n_isl, N), K kept (:meth:`_keeps_one_elastic_group`): the point
+        Hessians of the elastic kernel reduced to the objects' matrices, without the energy and gradient terms
+        (the kernel evaluation that follows computes those)."""
+        _, cub_c, points = self.elastic_groups[0]
+        _, _, point_hess, _ = points.evaluate(self.layout.to_objects(q), True)
+        self._kept_elastic_hessian[0] = elastic_hessian(cub_c, point_hess)
+        return self._base_matrix(self.model.mass_matrix, self._kept_elastic_hessian[0])
 
     def _all_elastic_kept(self, elastic_hess: torch.Tensor) -> bool:
         """Whether ``elastic_hess`` is the kept matrix of every object (one deformable group, lagged)."""

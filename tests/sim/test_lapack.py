@@ -1,30 +1,49 @@
-"""The in-place LAPACK Newton directions (:mod:`data_gen.sim.lapack`): torch.linalg's bits, analytic values,
-and the cases they hand back to torch.linalg."""
+"""The in-place LAPACK Newton directions (:mod:`data_gen.sim.lapack`): torch.linalg's bits on symmetric
+matrices, the upper triangle of nearly symmetric ones, analytic values, and the cases they hand back."""
 
 import pytest
 import torch
 
-from data_gen.sim.lapack import CholeskyDirections, lapack_routines, torch_direction
+from data_gen.sim.lapack import CholeskyDirections, lapack_routines, torch_direction, upper_symmetric
 
 needs_lapack = pytest.mark.skipif(lapack_routines() is None, reason="torch's CPU library exports no dpotrf/dpotrs")
 
 
-def _spd(n_isl: int, size: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+def _spd(n_isl: int, size: int, seed: int, asymmetry: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
     generator = torch.Generator().manual_seed(seed)
     a = torch.randn(n_isl, size, size, dtype=torch.float64, generator=generator)
     hess = a @ a.mT + 1e-3 * torch.eye(size, dtype=torch.float64)
-    hess = hess + 1e-10 * torch.randn(hess.shape, dtype=torch.float64, generator=generator)  # not exactly symmetric
+    hess = torch.add(hess, hess.mT).mul_(0.5)  # exactly symmetric
+    hess = hess + asymmetry * torch.randn(hess.shape, dtype=torch.float64, generator=generator)
     return hess, torch.randn(n_isl, size, dtype=torch.float64, generator=generator)
 
 
 @needs_lapack
 @pytest.mark.parametrize("n_isl,size", [(1, 240), (3, 48), (2, 96)])
-def test_directions_are_torch_linalg_bit_for_bit(n_isl, size):
+def test_directions_of_symmetric_matrices_are_torch_linalg_bit_for_bit(n_isl, size):
     hess, grad = _spd(n_isl, size, seed=size)
     out = torch.full((n_isl, size), float("nan"), dtype=torch.float64)
+    before = hess.clone()
     assert CholeskyDirections().solve(hess, grad, out, [True] * n_isl)
+    assert torch.equal(hess, before)  # factorised on a copy
     assert torch.equal(out, torch_direction(hess, grad))
     assert torch.allclose(hess @ out[:, :, None], -grad[:, :, None], rtol=0, atol=1e-6)  # it solves the system
+
+
+@needs_lapack
+def test_a_nearly_symmetric_matrix_is_read_by_its_upper_triangle():
+    """The solver's matrices are symmetric to round-off: the factor is the upper triangle's (exactly), within
+    round-off of the symmetric part's; in place, the matrix is consumed."""
+    hess, grad = _spd(2, 60, seed=5, asymmetry=1e-13)
+    assert not torch.equal(hess, hess.mT)
+    out = torch.empty(2, 60, dtype=torch.float64)
+    directions = CholeskyDirections()
+    matrix = hess.clone()
+    assert directions.solve(matrix, grad, out, [True, True], overwrite=True)
+    assert not torch.equal(matrix, hess)  # overwritten by its factor
+    assert torch.equal(out, torch_direction(upper_symmetric(hess), grad))
+    reference = torch_direction(hess, grad)
+    torch.testing.assert_close(out, reference, rtol=0.0, atol=1e-9 * float(reference.abs().amax()))
 
 
 @needs_lapack
@@ -43,14 +62,13 @@ def test_only_wanted_islands_are_solved_and_buffers_are_reused():
     out = torch.full((3, 12), 7.0, dtype=torch.float64)
     directions = CholeskyDirections()
     assert directions.solve(hess, grad, out, [True, False, True])
-    expected = torch_direction(hess[[0, 2]], grad[[0, 2]])
-    assert torch.equal(out[[0, 2]], expected)
+    assert torch.equal(out[[0, 2]], torch_direction(hess[[0, 2]], grad[[0, 2]]))
     assert directions.sum_buffer(3, 12) is directions.sum_buffer(3, 12)  # kept per shape
     assert directions.sum_buffer(3, 12).shape == (3, 12, 12)
 
 
 @needs_lapack
-def test_an_indefinite_wanted_matrix_is_handed_back():
+def test_an_indefinite_wanted_matrix_is_handed_back_and_the_copy_path_keeps_it():
     hess, grad = _spd(2, 6, seed=2)
     hess[1, 3, 3] = -50.0
     before = hess.clone()
@@ -65,3 +83,8 @@ def test_tensors_the_routines_cannot_take_are_handed_back():
     out = torch.empty(1, 8, dtype=torch.float64)
     assert not directions.solve(hess.float(), grad.float(), out.float(), [True])  # float32
     assert not directions.solve(hess.mT, grad, out, [True])  # not contiguous
+
+
+def test_upper_symmetric_mirrors_the_upper_triangle():
+    hess = torch.arange(9, dtype=torch.float64).reshape(1, 3, 3)
+    assert upper_symmetric(hess).tolist() == [[[0.0, 1.0, 2.0], [1.0, 4.0, 5.0], [2.0, 5.0, 8.0]]]

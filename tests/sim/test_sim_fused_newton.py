@@ -77,8 +77,9 @@ def test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms(scene)
     """``StepObjective(kernel_evaluation=True)`` on deformable objects (3, 2 and 4 handles, pairs in an island
     and against a frozen partner, lagged elastic matrix): an evaluation without derivatives is one launch
     from the start, one with derivatives once the first has formed the kept elastic blocks (the kernel adds
-    only the contact matrix to the kept ``M + h^2 K``). Values, gradients and matrices equal the batched
-    terms' at every state to round-off, and a projected (strict) evaluation still takes the batched terms."""
+    only the contact matrix to the kept ``M + h^2 K``; the first forms those blocks from the elastic kernel's
+    point Hessians and launches too). Values, gradients and matrices equal the batched terms' at every state
+    to round-off, and a projected (strict) evaluation still takes the batched terms."""
     model, layout, distance, _, _, pairs, tm = _setup(scene, 3, (3, 2, 4))
     tmdot = torch.zeros_like(tm)
     gen = torch.Generator().manual_seed(4)
@@ -100,8 +101,8 @@ def test_kernel_evaluation_of_deformable_islands_equals_the_batched_terms(scene)
     assert launches.call_count == 1  # without derivatives: the kernel from the first evaluation on
     for k, q in enumerate([q0, *states]):
         ev, ref = kernel.evaluate(q, True), batched.evaluate(q, True)
-        # the first evaluation with derivatives forms the kept blocks (batched terms), the later ones launch
-        assert launches.call_count == 1 + 2 * k
+        # every evaluation launches, the first with derivatives after forming the kept blocks
+        assert launches.call_count == 2 + 2 * k
         torch.testing.assert_close(ev.value, ref.value, rtol=1e-12, atol=0.0)
         torch.testing.assert_close(ev.grad, ref.grad, rtol=0.0, atol=1e-10 * float(ref.grad.abs().amax()))
         torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))
@@ -140,7 +141,7 @@ def test_kernel_evaluation_follows_the_next_objective_on_the_same_workspace():
 
     first = objective(H_S, rates[0], True)
     q_first = layout.to_islands(tm + H_S * rates[0])
-    first.evaluate(q_first, True)  # forms the kept blocks; the next two evaluations are launches
+    first.evaluate(q_first, True)  # forms the kept blocks (and launches), as the next two evaluations do
     first.evaluate(q_first, True)
     first.evaluate(q_first, False)
     h2 = 0.5 * H_S
@@ -150,9 +151,10 @@ def test_kernel_evaluation_follows_the_next_objective_on_the_same_workspace():
     launches = second.evaluator.evaluate_bound = mock.Mock(wraps=second.evaluator.evaluate_bound)
     ref = batched.evaluate(q, True)
     torch.testing.assert_close(second.evaluate(q, False).value, ref.value, rtol=1e-12, atol=0.0)
-    second.evaluate(q, True)
+    first_ev = second.evaluate(q, True)  # forms the second objective's own kept blocks
     ev = second.evaluate(q, True)
-    assert launches.call_count == 2  # without derivatives, then with derivatives once the blocks are kept
+    assert launches.call_count == 3  # without derivatives, then with them (the first forming the kept blocks)
+    torch.testing.assert_close(first_ev.hess, ev.hess, rtol=0.0, atol=0.0)  # the same kept blocks, the same state
     torch.testing.assert_close(ev.value, ref.value, rtol=1e-12, atol=0.0)
     torch.testing.assert_close(ev.grad, ref.grad, rtol=0.0, atol=1e-10 * float(ref.grad.abs().amax()))
     torch.testing.assert_close(ev.hess, ref.hess, rtol=0.0, atol=1e-10 * float(ref.hess.abs().amax()))

@@ -71,15 +71,18 @@ def elastic_gradient(cub_c: torch.Tensor, piola: torch.Tensor) -> torch.Tensor:
 def _reduce(cub_c: torch.Tensor, piola: torch.Tensor, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Gradient (n, 3, K) and Hessian (n, 3K, 3K) from volume-weighted Piola stresses (n, P, 3, 3) and
     point Hessians (n, P, 9, 9) with bases (n, P, K, 3)."""
+    return elastic_gradient(cub_c, piola), elastic_hessian(cub_c, h)
+
+
+def elastic_hessian(cub_c: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+    """Hessian (n, 3K, 3K) from volume-weighted point Hessians (n, P, 9, 9) with bases (n, P, K, 3)."""
     n, p, k, _ = cub_c.shape
-    grad = elastic_gradient(cub_c, piola)
     # K[r, a, s, b] = sum_i sum_j C_i[a, j] (sum_k H_i[(r, j), (s, k)] C_i[b, k]): the small per-point H is
     # reordered to (j, r, s, k) so that the inner product comes out as [(i j), (r s b)] without a copy
     h_jrs = h.reshape(n, p, 3, 3, 3, 3).transpose(2, 3).reshape(n * p, 27, 3)
     inner = (h_jrs @ cub_c.reshape(n * p, k, 3).transpose(1, 2)).reshape(n, p * 3, 9 * k)
     left = cub_c.permute(0, 2, 1, 3).reshape(n, k, p * 3)  # [a, (i j)]
-    hess = (left @ inner).reshape(n, k, 3, 3, k).transpose(1, 2).reshape(n, 3 * k, 3 * k)
-    return grad, hess
+    return (left @ inner).reshape(n, k, 3, 3, k).transpose(1, 2).reshape(n, 3 * k, 3 * k)
 
 
 def neo_hookean_hessian_batched(F: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
@@ -106,4 +109,4 @@ def _project(h: torch.Tensor, tolerance_pa: torch.Tensor, strict: torch.Tensor |
     return h
 
 
-__all__ = ["elastic", "elastic_from_points", "elastic_gradient", "deformation_gradients", "neo_hookean_hessian", "neo_hookean_hessian_batched"]
+__all__ = ["elastic", "elastic_from_points", "elastic_gradient", "elastic_hessian", "deformation_gradients", "neo_hookean_hessian", "neo_hookean_hessian_batched"]
