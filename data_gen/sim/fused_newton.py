@@ -1534,7 +1534,7 @@ class FusedNewton:
         # line search length, and replayed: warp packs a struct argument by reference (a new objective's step data,
         # written into the same StepData, is what the replay reads), an array by value; re-packed after a
         # regrouping (relayout: other island-sized arrays, and the launch size and outputs where the count changes)
-        self._bound_launches: dict[int | tuple[str, int], wp.Launch] = {}
+        self._bound_launches: dict[int | tuple, wp.Launch] = {}
         self._value = torch.zeros(layout.num_islands, dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self._flagged = torch.zeros(layout.num_islands, dtype=torch.int32, device=model.mass_kg.device)
         self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
@@ -1705,6 +1705,17 @@ class FusedNewton:
             return value, None, None, flagged.bool()
         return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size).clone(), flagged.bool()
 
+    def _replayed(self, key: tuple, kernel: wp.Kernel, inputs: list) -> None:
+        """Launch ``kernel`` over the islands with ``inputs``, packed at the first launch under ``key`` and
+        replayed after (packing the structs' arrays costs more than these kernels' work; the structs are read
+        by reference, so a replay sees the step data bound since; ``key`` holds every scalar input)."""
+        launch = self._bound_launches.get(key)
+        if launch is None:
+            launch = self._bound_launches[key] = wp.launch(
+                kernel, dim=self.shape[0], device=self.device, record_cmd=True, inputs=inputs
+            )
+        launch.launch()
+
     def _island_outputs(self) -> None:
         """Per-island value and flag outputs of the island count now (remade after a regrouping changed it,
         and with them the launches packed on the old ones)."""
@@ -1821,7 +1832,7 @@ class FusedNewton:
         given = self._given_limits(scale, trust_m, settings)
         self.stats.zero_()
         self.stats[:, STATUS] = RUNNING
-        wp.launch(split_start_kernel, dim=n_isl, device=self.device, inputs=[
+        self._replayed(("start", int(given), float(settings.tolerance), self._gravity_norm), split_start_kernel, [
             self.bodies, self.scene, st, *self._limits, int(given), wp.float64(settings.tolerance),
             wp.float64(self._gravity_norm),
         ])  # fmt: skip
@@ -1909,7 +1920,7 @@ class FusedNewton:
         ss.gravity_norm = wp.float64(self._gravity_norm)
         ss.iterations, ss.line_search_steps = int(settings.iterations), int(settings.line_search_steps)
         groups = self._bind_sums(ss, num_sub, p, pair_group)
-        wp.launch(substeps_kernel, dim=n_isl, device=self.device, inputs=[self.bodies, self.scene, st, self.work, ss])
+        self._replayed(("substeps",), substeps_kernel, [self.bodies, self.scene, st, self.work, ss])
         out = self.sub_stats[:num_sub].to(torch.int64)  # (sub, n_isl, NUM_STATS)
         if bool((out[:, :, STATUS] != SOLVED).any()):
             return None
@@ -1985,6 +1996,7 @@ class FusedNewton:
         ss.forces = forces
         self._bind_island_substeps(ss, count)
         self._substeps = ss
+        self._bound_launches.pop(("substeps",), None)  # packed with the previous Substeps
         return ss
 
     def _bind_island_substeps(self, ss: Substeps, count: int) -> None:
@@ -1999,10 +2011,7 @@ class FusedNewton:
         a result): what :meth:`StepObjective.forces` computes at that state, from one launch over the islands."""
         from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
-        n_isl, _ = self.shape
-        wp.launch(final_forces_kernel, dim=n_isl, device=self.device, inputs=[
-            self.bodies, self.scene, self._step, self.work, self._forces,
-        ])  # fmt: skip
+        self._replayed(("forces",), final_forces_kernel, [self.bodies, self.scene, self._step, self.work, self._forces])
         p = int(self._step.num_pairs)
         return ContactForces(self.scene_force.clone(), self.scene_normals.clone(), self.sphere_x.clone(),
                              self.pair_force[:p].clone(), self.pair_normals[:p].clone())  # fmt: skip
