@@ -1848,14 +1848,15 @@ class FusedNewton:
         grad = self.grad.view(n_isl, size)
         status = self.stats[:, STATUS]  # (a view: what the last launch left)
         hess = ev.hess
-        directions = self._directions
-        summed = directions.sum_buffer(n_isl, size) if directions.available else None
+        dq_out = self.dq.view(n_isl, size)
+        directions = self._directions if self._directions.suits(hess, grad, dq_out) else None
+        summed = directions.sum_buffer(n_isl, size) if directions is not None else None
         running = [True] * n_isl
         for _ in range(settings.iterations):
             # an island that has stopped keeps its last matrix: only the running ones need a direction; the
             # matrices summed here are factorised in place (the first, the evaluation's, on a copy)
             in_place = hess is summed
-            if not directions.solve(hess, grad, self.dq.view(n_isl, size), running, overwrite=in_place):
+            if directions is None or not directions.solve_suited(hess, grad, dq_out, running, overwrite=in_place):
                 if in_place:  # the failed factorisation consumed the sum: formed again for the ridge path
                     hess = torch.add(base, self.hess.view(n_isl, size, size), out=summed)
                 dq, ok = cholesky_direction(hess, grad)  # (with its ridge where a matrix is not positive definite)

@@ -122,8 +122,19 @@ class CholeskyDirections:
         False, with ``out`` (and with ``overwrite`` ``hess``) undefined, when the routines are unavailable, the
         tensors do not suit them, or a wanted matrix is not positive definite: the caller then takes the
         ``torch.linalg`` path (with its ridge)."""
-        if self._routines is None or not _suits(hess, grad, out):
+        if not self.suits(hess, grad, out):
             return False
+        return self.solve_suited(hess, grad, out, wanted, overwrite)
+
+    def suits(self, hess: torch.Tensor, grad: torch.Tensor, out: torch.Tensor) -> bool:
+        """Whether :meth:`solve` can take these tensors (the routines are available; float64, contiguous, on the
+        CPU)."""
+        return self._routines is not None and _suits(hess, grad, out)
+
+    def solve_suited(self, hess: torch.Tensor, grad: torch.Tensor, out: torch.Tensor, wanted: Sequence[bool],
+                     overwrite: bool = False) -> bool:  # fmt: skip
+        """:meth:`solve` of tensors :meth:`suits` has accepted (or others like them: the same dtype, device and
+        layout), without checking them again (a solve's loop over its Newton iterations checks once)."""
         matrices = hess
         if not overwrite:
             matrices = self._buffers(*grad.shape)[1]

@@ -83,6 +83,18 @@ def test_tensors_the_routines_cannot_take_are_handed_back():
     out = torch.empty(1, 8, dtype=torch.float64)
     assert not directions.solve(hess.float(), grad.float(), out.float(), [True])  # float32
     assert not directions.solve(hess.mT, grad, out, [True])  # not contiguous
+    assert not directions.suits(hess.mT, grad, out) and not directions.suits(hess, grad.float(), out)
+
+
+@needs_lapack
+def test_a_solve_checked_once_equals_the_checked_solve():
+    hess, grad = _spd(2, 24, seed=4)
+    directions = CholeskyDirections()
+    checked, unchecked = torch.empty(2, 24, dtype=torch.float64), torch.empty(2, 24, dtype=torch.float64)
+    assert directions.suits(hess, grad, unchecked)
+    assert directions.solve(hess, grad, checked, [True, True])
+    assert directions.solve_suited(hess, grad, unchecked, [True, True])
+    assert torch.equal(checked, unchecked)
 
 
 def test_upper_symmetric_mirrors_the_upper_triangle():
