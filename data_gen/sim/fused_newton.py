@@ -1804,7 +1804,8 @@ class FusedNewton:
         """``minimise(objective, q0, ...)`` for islands of deformable objects with a kept elastic matrix
         (``lagged_elastic_hessian``), the work split at the factorisation: the first evaluation is
         ``objective``'s own (it forms and keeps ``M + h^2 K``); per iteration the host factorises the kept matrix
-        plus the kernel's contact part (LAPACK, :func:`cholesky_direction`, as ``minimise`` does) and one launch
+        plus the kernel's contact part (LAPACK in place, :class:`data_gen.sim.lapack.CholeskyDirections`, with
+        :func:`cholesky_direction`'s ridge as ``minimise``'s where a matrix is not positive definite) and one launch
         (:func:`update_islands_kernel`) does the rest: update norms, trust limit, Armijo search, convergence and
         the next point's derivatives. One thread's factorisation of a 240-unknown island costs 25x LAPACK's,
         so the fused :meth:`solve` does not suit these islands; ``minimise``'s per-iteration tensor operations
