@@ -1852,6 +1852,10 @@ class FusedNewton:
         dq_out = self.dq.view(n_isl, size)
         directions = self._directions if self._directions.suits(hess, grad, dq_out) else None
         summed = directions.sum_buffer(n_isl, size) if directions is not None else None
+
+        def kept_plus_contact() -> torch.Tensor:  # the matrix at the kernel's last point, into the kept buffer
+            return torch.add(base, self.hess.view(n_isl, size, size), out=summed)
+
         running = [True] * n_isl
         for _ in range(settings.iterations):
             # an island that has stopped keeps its last matrix: only the running ones need a direction; the
@@ -1859,7 +1863,7 @@ class FusedNewton:
             in_place = hess is summed
             if directions is None or not directions.solve_suited(hess, grad, dq_out, running, overwrite=in_place):
                 if in_place:  # the failed factorisation consumed the sum: formed again for the ridge path
-                    hess = torch.add(base, self.hess.view(n_isl, size, size), out=summed)
+                    hess = kept_plus_contact()
                 dq, ok = cholesky_direction(hess, grad)  # (with its ridge where a matrix is not positive definite)
                 if ok is not None and not bool((ok | (status != RUNNING)).all()):
                     return None  # minimise projects every elastic block of such an island
@@ -1871,7 +1875,7 @@ class FusedNewton:
             if RUNNING not in codes:
                 break
             running = [code == RUNNING for code in codes]
-            hess = torch.add(base, self.hess.view(n_isl, size, size), out=summed)
+            hess = kept_plus_contact()
         return self._result(host_evaluations=1)  # (the objective's first evaluation)
 
     def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],

@@ -1,12 +1,23 @@
 """The in-place LAPACK Newton directions (:mod:`data_gen.sim.lapack`): torch.linalg's bits on symmetric
 matrices, the upper triangle of nearly symmetric ones, analytic values, and the cases they hand back."""
 
+import platform
+import sys
+
 import pytest
 import torch
 
 from data_gen.sim.lapack import CholeskyDirections, lapack_routines, torch_direction, upper_symmetric
 
 needs_lapack = pytest.mark.skipif(lapack_routines() is None, reason="torch's CPU library exports no dpotrf/dpotrs")
+
+
+@pytest.mark.skipif(not (sys.platform == "linux" and platform.machine() == "x86_64"),
+                    reason="torch's x86_64 Linux builds link MKL into libtorch_cpu; other builds may not export it")
+def test_the_routines_of_torchs_cpu_library_pass_their_check_on_linux_x86_64():
+    """On the project's machines the in-place path must be taken (its check against torch.linalg passed): a torch
+    build whose routines went missing or disagree would silently fall back to the slower path."""
+    assert lapack_routines() is not None
 
 
 def _spd(n_isl: int, size: int, seed: int, asymmetry: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
