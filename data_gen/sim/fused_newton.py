@@ -1705,16 +1705,23 @@ class FusedNewton:
             return value, None, None, flagged.bool()
         return value, self.grad.view(n_isl, size).clone(), self.hess.view(n_isl, size, size).clone(), flagged.bool()
 
-    def _replayed(self, key: tuple, kernel: wp.Kernel, inputs: list) -> None:
-        """Launch ``kernel`` over the islands with ``inputs``, packed at the first launch under ``key`` and
-        replayed after (packing the structs' arrays costs more than these kernels' work; the structs are read
-        by reference, so a replay sees the step data bound since; ``key`` holds every scalar input)."""
+    def _recorded(self, key: int | tuple, kernel: wp.Kernel, inputs: list) -> wp.Launch:
+        """The launch of ``kernel`` over the islands with ``inputs``, packed at its first use under ``key`` and
+        kept (packing the structs' arrays costs more than these kernels' work; the structs are read by
+        reference, so a replay sees the step data bound since; ``key`` holds every scalar input)."""
         launch = self._bound_launches.get(key)
         if launch is None:
             launch = self._bound_launches[key] = wp.launch(
                 kernel, dim=self.shape[0], device=self.device, record_cmd=True, inputs=inputs
             )
-        launch.launch()
+        return launch
+
+    def _bound_step_of(self, objective: StepObjective) -> StepData:
+        """The step data of ``objective``, bound at its first use (evaluate_bound and solve_split read the same)."""
+        if self._bound_objective is not objective:
+            self._bound_step = self._step_data(objective)
+            self._bound_objective = objective
+        return self._bound_step
 
     def _island_outputs(self) -> None:
         """Per-island value and flag outputs of the island count now (remade after a regrouping changed it,
@@ -1734,19 +1741,12 @@ class FusedNewton:
         this workspace's, prepared by its constructor)."""
         n_isl, size = self.shape
         self._island_outputs()
-        if self._bound_objective is not objective:
-            self._bound_step = self._step_data(objective)
-            self._bound_objective = objective
+        st = self._bound_step_of(objective)
         self.q.copy_(q.reshape(-1))
         mode = int(CONTACT_MATRIX_ONLY if derivatives else 0)
-        launch = self._bound_launches.get(mode)
-        if launch is None:
-            launch = self._bound_launches[mode] = wp.launch(
-                evaluate_islands_kernel, dim=n_isl, device=self.device, record_cmd=True, inputs=[
-                    self.bodies, self.scene, self._bound_step, self.work, mode, self._value_wp, self._flagged_wp,
-                ],
-            )  # fmt: skip
-        launch.launch()
+        self._recorded(mode, evaluate_islands_kernel, [
+            self.bodies, self.scene, st, self.work, mode, self._value_wp, self._flagged_wp,
+        ]).launch()  # fmt: skip
         value = self._value.clone()
         if not derivatives:
             return value, None, None
@@ -1821,11 +1821,7 @@ class FusedNewton:
         base = objective.kept_matrix
         if base is None or not bool(torch.isfinite(ev.grad).all() & torch.isfinite(ev.value).all()):
             return None
-        if self._bound_objective is objective:  # bound by the first evaluation (evaluate_bound)
-            st = self._bound_step
-        else:
-            st = self._step_data(objective)
-            self._bound_objective, self._bound_step = objective, st  # evaluate_bound reads the same step data
+        st = self._bound_step_of(objective)  # (bound by the first evaluation when it was the kernel's)
         self.q.copy_(q0.reshape(-1))
         self.grad.copy_(ev.grad.reshape(-1))
         self._island_outputs()
@@ -1833,19 +1829,13 @@ class FusedNewton:
         given = self._given_limits(scale, trust_m, settings)
         self.stats.zero_()
         self.stats[:, STATUS] = RUNNING
-        self._replayed(("start", int(given), float(settings.tolerance), self._gravity_norm), split_start_kernel, [
+        self._recorded(("start", int(given), float(settings.tolerance), self._gravity_norm), split_start_kernel, [
             self.bodies, self.scene, st, *self._limits, int(given), wp.float64(settings.tolerance),
             wp.float64(self._gravity_norm),
+        ]).launch()  # fmt: skip
+        launch = self._recorded(("update", int(settings.line_search_steps)), update_islands_kernel, [
+            self.bodies, self.scene, st, self.work, *self._limits, int(settings.line_search_steps), self._value_wp,
         ])  # fmt: skip
-        key = ("update", int(settings.line_search_steps))
-        launch = self._bound_launches.get(key)
-        if launch is None:
-            launch = self._bound_launches[key] = wp.launch(
-                update_islands_kernel, dim=n_isl, device=self.device, record_cmd=True, inputs=[
-                    self.bodies, self.scene, st, self.work, *self._limits, int(settings.line_search_steps),
-                    self._value_wp,
-                ],
-            )  # fmt: skip
         grad = self.grad.view(n_isl, size)
         status = self.stats[:, STATUS]  # (a view: what the last launch left)
         hess = ev.hess
@@ -1926,7 +1916,7 @@ class FusedNewton:
         ss.gravity_norm = wp.float64(self._gravity_norm)
         ss.iterations, ss.line_search_steps = int(settings.iterations), int(settings.line_search_steps)
         groups = self._bind_sums(ss, num_sub, p, pair_group)
-        self._replayed(("substeps",), substeps_kernel, [self.bodies, self.scene, st, self.work, ss])
+        self._recorded(("substeps",), substeps_kernel, [self.bodies, self.scene, st, self.work, ss]).launch()
         out = self.sub_stats[:num_sub].to(torch.int64)  # (sub, n_isl, NUM_STATS)
         if bool((out[:, :, STATUS] != SOLVED).any()):
             return None
@@ -2017,7 +2007,8 @@ class FusedNewton:
         a result): what :meth:`StepObjective.forces` computes at that state, from one launch over the islands."""
         from data_gen.sim.step_objective import ContactForces  # step_objective imports this module
 
-        self._replayed(("forces",), final_forces_kernel, [self.bodies, self.scene, self._step, self.work, self._forces])
+        inputs = [self.bodies, self.scene, self._step, self.work, self._forces]
+        self._recorded(("forces",), final_forces_kernel, inputs).launch()
         p = int(self._step.num_pairs)
         return ContactForces(self.scene_force.clone(), self.scene_normals.clone(), self.sphere_x.clone(),
                              self.pair_force[:p].clone(), self.pair_normals[:p].clone())  # fmt: skip

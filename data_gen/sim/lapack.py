@@ -8,7 +8,7 @@ passes and new tensors cost a third of the work. :class:`CholeskyDirections` cal
 read by ``dpotrf`` as its transpose, and ``dpotrf`` reads one triangle only: the factor is that of the
 symmetric matrix whose entries are the row-major upper triangle of the given one. The solver's matrices are
 symmetric but for round-off (``|H - H^T| <= 7e-17 max |H|`` over the matrices of a ``soft_5`` run), so that
-is their symmetric part to round-off, and for an exactly symmetric matrix it is :func:`torch_direction`'s
+is their symmetric part to round-off, and for an exactly symmetric matrix it is :func:`data_gen.sim.newton.cholesky_direction`'s
 result bit for bit (the routines are the ones torch calls). :func:`lapack_routines` checks that once per
 process on a test matrix: where torch's library lacks the routines or differs, they are not used and the
 caller keeps ``torch.linalg``.
@@ -23,13 +23,15 @@ from collections.abc import Sequence
 
 import torch
 
+from data_gen.sim.newton import cholesky_direction
+
 _DTYPE = torch.float64
 
 
 @functools.lru_cache(maxsize=1)
 def lapack_routines() -> tuple[ctypes._CFuncPtr, ctypes._CFuncPtr] | None:
     """``(dpotrf_, dpotrs_)`` of the LAPACK linked into torch's CPU library, or None where that library does not
-    export them or their direction for an exactly symmetric test matrix differs from :func:`torch_direction`'s
+    export them or their direction for an exactly symmetric test matrix differs from :func:`data_gen.sim.newton.cholesky_direction`'s
     in any bit."""
     path = os.path.join(os.path.dirname(torch.__file__), "lib", "libtorch_cpu.so")
     try:
@@ -47,16 +49,7 @@ def lapack_routines() -> tuple[ctypes._CFuncPtr, ctypes._CFuncPtr] | None:
     out = torch.empty(1, 13, dtype=_DTYPE)
     if not _factor_and_solve(routines, hess.clone(), grad, out, [True]):
         return None
-    return routines if torch.equal(out, torch_direction(hess, grad)) else None
-
-
-def torch_direction(hess: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
-    """``-H^-1 g`` per island by ``torch.linalg`` on the symmetric part of ``hess`` (n, N, N), ``grad`` (n, N);
-    every matrix must be positive definite."""
-    sym = torch.add(hess, hess.transpose(1, 2)).mul_(0.5)
-    chol, _ = torch.linalg.cholesky_ex(sym)
-    y = torch.linalg.solve_triangular(chol, grad[:, :, None], upper=False)
-    return torch.linalg.solve_triangular(chol.mT, y, upper=True)[:, :, 0].neg_()
+    return routines if torch.equal(out, cholesky_direction(hess, grad)[0]) else None
 
 
 def upper_symmetric(hess: torch.Tensor) -> torch.Tensor:
@@ -97,10 +90,6 @@ class CholeskyDirections:
     def __init__(self) -> None:
         self._routines = lapack_routines()
         self._scratch: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = {}
-
-    @property
-    def available(self) -> bool:
-        return self._routines is not None
 
     def sum_buffer(self, n_isl: int, size: int) -> torch.Tensor:
         """A kept (n_isl, size, size) buffer for the caller's matrix (``torch.add(..., out=)``), which
@@ -146,4 +135,4 @@ def _suits(*tensors: torch.Tensor) -> bool:
     return all(t.dtype == _DTYPE and t.device.type == "cpu" and t.is_contiguous() for t in tensors)
 
 
-__all__ = ["CholeskyDirections", "lapack_routines", "torch_direction", "upper_symmetric"]
+__all__ = ["CholeskyDirections", "lapack_routines", "upper_symmetric"]

@@ -54,7 +54,7 @@ DEFAULT_SECTIONS: tuple[tuple[str, str | None, str], ...] = (
     ("data_gen.sim.fused_newton", "FusedNewton", "solve_split"),
     ("data_gen.sim.step_objective", "StepObjective", "evaluate"),
     ("data_gen.sim.newton", None, "cholesky_direction"),
-    ("data_gen.sim.lapack", "CholeskyDirections", "solve"),
+    ("data_gen.sim.lapack", "CholeskyDirections", "solve_suited"),
     ("data_gen.sim.recording", "FrameRecorder", "record"),
 )
 

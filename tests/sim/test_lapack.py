@@ -7,17 +7,22 @@ import sys
 import pytest
 import torch
 
-from data_gen.sim.lapack import CholeskyDirections, lapack_routines, torch_direction, upper_symmetric
+from data_gen.sim.lapack import CholeskyDirections, lapack_routines, upper_symmetric
+from data_gen.sim.newton import cholesky_direction
 
-needs_lapack = pytest.mark.skipif(lapack_routines() is None, reason="torch's CPU library exports no dpotrf/dpotrs")
+# torch's x86_64 Linux builds (the project's machines) link MKL into libtorch_cpu: there the in-place path must be
+# taken, so these tests run and fail if the routines went missing or failed their check against torch.linalg (a
+# silent fall back to the slower path); other builds may not export them
+ON_MKL_BUILD = sys.platform == "linux" and platform.machine() == "x86_64"
+needs_lapack = pytest.mark.skipif(not ON_MKL_BUILD and lapack_routines() is None,
+                                  reason="torch's CPU library exports no dpotrf/dpotrs")  # fmt: skip
 
 
-@pytest.mark.skipif(not (sys.platform == "linux" and platform.machine() == "x86_64"),
-                    reason="torch's x86_64 Linux builds link MKL into libtorch_cpu; other builds may not export it")
-def test_the_routines_of_torchs_cpu_library_pass_their_check_on_linux_x86_64():
-    """On the project's machines the in-place path must be taken (its check against torch.linalg passed): a torch
-    build whose routines went missing or disagree would silently fall back to the slower path."""
-    assert lapack_routines() is not None
+def torch_direction(hess: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
+    """The solver's torch.linalg direction of positive definite matrices (the reference)."""
+    dq, ok = cholesky_direction(hess, grad)
+    assert ok is None  # every matrix positive definite
+    return dq
 
 
 def _spd(n_isl: int, size: int, seed: int, asymmetry: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
