@@ -805,15 +805,9 @@ def _update_norms(bd: Bodies, dq: wp.array(dtype=wp.float64), isl: int):
                 row = r * kp + a
                 m_d = _ZERO
                 for s in range(s_lo, s_hi):
-                    for c in range(cols):
-                        fc = f + 4 * s + c  # one handle: its 12 unknowns are contiguous
-                        if cols != 4:
-                            fc = bd.flat_index[o, s * kp + c]
-                        m_d = m_d + bd.mass_matrix[o, row, s * kp + c] * dq[fc]
-                fr = f + 4 * r + a
-                if cols != 4:
-                    fr = bd.flat_index[o, row]
-                mass2 = mass2 + dq[fr] * m_d
+                    for c in range(cols):  # (an object's unknowns are contiguous: (s, c) at f + s cols + c)
+                        m_d = m_d + bd.mass_matrix[o, row, s * kp + c] * dq[f + s * cols + c]
+                mass2 = mass2 + dq[f + r * cols + a] * m_d
         if cols == 4:  # the update's columns loaded once
             d0 = wp.vec3d(dq[f], dq[f + 4], dq[f + 8])
             d1 = wp.vec3d(dq[f + 1], dq[f + 5], dq[f + 9])
@@ -830,10 +824,11 @@ def _update_norms(bd: Bodies, dq: wp.array(dtype=wp.float64), isl: int):
         else:
             for s in range(bd.radius.shape[1]):
                 u = wp.vec3d(_ZERO, _ZERO, _ZERO)
-                for a in range(cols):
-                    ba = bd.b[o, s, a]
-                    u = u + ba * wp.vec3d(dq[bd.flat_index[o, a]], dq[bd.flat_index[o, kp + a]],
-                                          dq[bd.flat_index[o, 2 * kp + a]])  # fmt: skip
+                for a4 in range(cols // 4):  # (four basis entries per read, summed in order)
+                    b4 = bd.b4[o, s, a4]
+                    for k in range(4):
+                        a = 4 * a4 + k
+                        u = u + b4[k] * wp.vec3d(dq[f + a], dq[f + cols + a], dq[f + 2 * cols + a])
                 motion = wp.max(motion, wp.length(u))
     return wp.sqrt(wp.max(mass2, _ZERO)), motion
 
