@@ -171,6 +171,7 @@ class Work:
     grad: wp.array(dtype=wp.float64)
     hess: wp.array(dtype=wp.float64)
     hess4: wp.array(dtype=wp.vec4d)  # ``hess`` four entries at a time (an island's rows and objects' columns are aligned)
+    grad4: wp.array(dtype=wp.vec4d)  # ``grad`` likewise (every object's unknowns start at a multiple of 4)
     chol: wp.array(dtype=wp.float64)  # the envelope Cholesky factor
     dq: wp.array(dtype=wp.float64)  # the Newton update
     chol4: wp.array(dtype=wp.vec4d)  # ``chol`` read four entries at a time (see _subtract_products)
@@ -266,8 +267,14 @@ def _sphere_x(bd: Bodies, tm: wp.array3d(dtype=wp.float64), o: int, s: int, cols
     """:func:`sphere_position` of sphere (o, s) at the states ``tm`` (m): the same sums in the same order, a
     one-handle object's with its four columns unrolled and its basis row read at once (warp's indexing, not the
     arithmetic, is what a position costs)."""
-    if cols != 4:
-        return sphere_position(tm, bd.rest, bd.b, o, s, cols)
+    if cols != 4:  # sphere_position's sums, the basis row read four entries at a time
+        x = bd.rest[o, s]
+        for a4 in range(cols // 4):
+            b4 = bd.b4[o, s, a4]
+            for k in range(4):
+                a = 4 * a4 + k
+                x = x + wp.vec3d(tm[o, 0, a], tm[o, 1, a], tm[o, 2, a]) * b4[k]
+        return x
     bo = bd.b4[o, s, 0]
     x = bd.rest[o, s]
     x = x + wp.vec3d(tm[o, 0, 0], tm[o, 1, 0], tm[o, 2, 0]) * bo[0]
@@ -399,20 +406,34 @@ def _deformation_gradient(bd: Bodies, tm4: wp.array3d(dtype=wp.vec4d), o: int, i
 
 
 @wp.func
-def _add_point_gradient(grad: wp.array(dtype=wp.float64), first: int, cub_c3: wp.array3d(dtype=wp.vec3d), o: int,
+def _point_gradient_entry(piola: wp.mat33d, r: int, c: wp.vec3d):
+    """``sum_j P[r, j] C[a, j]`` for the row ``c`` = C[a, :], summed in order."""
+    g_ra = _ZERO
+    g_ra = g_ra + piola[r, 0] * c[0]
+    g_ra = g_ra + piola[r, 1] * c[1]
+    g_ra = g_ra + piola[r, 2] * c[2]
+    return g_ra
+
+
+@wp.func
+def _add_point_gradient(grad4: wp.array(dtype=wp.vec4d), first: int, cub_c3: wp.array3d(dtype=wp.vec3d), o: int,
                         i: int, cols: int, w: wp.float64, piola: wp.mat33d):  # fmt: skip
     """Cubature point i of object o: its elastic gradient ``w P C_i^T`` (entry (r, a): ``w sum_j P[r, j] C[a, j]``)
-    added to the object's unknowns, contiguous from ``first`` (entry (r, a) at ``first + r cols + a``), each row
-    C[a, :] read once."""
-    for a in range(cols):
-        c = cub_c3[o, i, a]
+    added to the object's unknowns, contiguous from ``first`` (entry (r, a) at ``first + r cols + a``; ``first``
+    and ``cols`` multiples of 4), four entries of a row per read and write of ``grad4`` (the gradient's memory),
+    each row C[a, :] read once: every entry gets the same one addition as one at a time."""
+    for a4 in range(cols // 4):
+        c0 = cub_c3[o, i, 4 * a4]
+        c1 = cub_c3[o, i, 4 * a4 + 1]
+        c2 = cub_c3[o, i, 4 * a4 + 2]
+        c3 = cub_c3[o, i, 4 * a4 + 3]
         for r in range(3):
-            g_ra = _ZERO
-            g_ra = g_ra + piola[r, 0] * c[0]
-            g_ra = g_ra + piola[r, 1] * c[1]
-            g_ra = g_ra + piola[r, 2] * c[2]
-            fr = first + r * cols + a
-            grad[fr] = grad[fr] + w * g_ra
+            q = (first + r * cols) // 4 + a4
+            v = grad4[q]
+            grad4[q] = wp.vec4d(
+                v[0] + w * _point_gradient_entry(piola, r, c0), v[1] + w * _point_gradient_entry(piola, r, c1),
+                v[2] + w * _point_gradient_entry(piola, r, c2), v[3] + w * _point_gradient_entry(piola, r, c3),
+            )  # fmt: skip
 
 
 @wp.func
@@ -503,6 +524,7 @@ def _evaluate(
     band: wp.array2d(dtype=wp.int32),
     hess4: wp.array(dtype=wp.vec4d),
     tm4: wp.array3d(dtype=wp.vec4d),
+    grad4: wp.array(dtype=wp.vec4d),
 ):
     """Objective of island ``isl`` at the states ``tm`` (J); with ``derivatives`` its gradient and Newton
     matrix are written into the island's part of ``grad`` / ``hess`` (elastic blocks failing the near-SPD
@@ -578,7 +600,7 @@ def _evaluate(
                 psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], wp.where(derivatives == 1, 1, 0))
                 value = value + h2 * v * psi
                 if derivatives == CONTACT_MATRIX_ONLY:  # the elastic gradient only
-                    _add_point_gradient(grad, bd.flat_index[o, 0], bd.cub_c3, o, i, cols, h2 * v, piola)
+                    _add_point_gradient(grad4, bd.flat_index[o, 0], bd.cub_c3, o, i, cols, h2 * v, piola)
                 if derivatives == 1:
                     if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:  # as StepObjective: projected
                         flagged = int(1)
@@ -587,7 +609,7 @@ def _evaluate(
                     if bd.identity_c[o] != 0:  # C = [I; 0]: the sums below reduce to P and H themselves
                         _add_affine_elastic(grad, hess, n_size, isl, bd.flat_index[o, 0], w, piola, h9)
                         continue
-                    _add_point_gradient(grad, bd.flat_index[o, 0], bd.cub_c3, o, i, cols, w, piola)
+                    _add_point_gradient(grad4, bd.flat_index[o, 0], bd.cub_c3, o, i, cols, w, piola)
                     for r in range(3):
                         for a in range(cols):
                             fr = bd.flat_index[o, r * kp + a]
@@ -874,7 +896,7 @@ def _take_update(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, th
             stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
         else:
             stats[isl, EVALUATIONS] += 1
-        trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band, wk.hess4, wk.tm4)
+        trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band, wk.hess4, wk.tm4, wk.grad4)
         ok = int(0)
         if t < line_search_steps:
             if trial <= value + wp.float64(ARMIJO_C) * alpha * slope + wp.float64(1e-14) * wp.abs(value):
@@ -919,7 +941,7 @@ def _newton(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, thr: wp
     for it in range(iterations):
         if have == 0:
             _load_state(bd, q, tm, isl)
-            value, flagged = _evaluate(bd, sc, st, tm, isl, 1, grad, hess, band, wk.hess4, wk.tm4)
+            value, flagged = _evaluate(bd, sc, st, tm, isl, 1, grad, hess, band, wk.hess4, wk.tm4, wk.grad4)
             stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
         finite = int(1)
         biggest = _ZERO
@@ -994,7 +1016,8 @@ def evaluate_islands_kernel(
     isl = wp.tid()
     _scene_margins(bd, sc, st, isl)
     _load_state(bd, wk.q, wk.tm, isl)
-    v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4)
+    v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4,
+                              wk.grad4)  # fmt: skip
     value[isl] = v
     flagged[isl] = f
 
@@ -1043,7 +1066,8 @@ def update_islands_kernel(
         return
     if outcome == NEED_DERIVATIVES:
         _load_state(bd, wk.q, wk.tm, isl)
-        v, flagged = _evaluate(bd, sc, st, wk.tm, isl, CONTACT_MATRIX_ONLY, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4)
+        v, flagged = _evaluate(bd, sc, st, wk.tm, isl, CONTACT_MATRIX_ONLY, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4,
+                              wk.grad4)  # fmt: skip
         wk.stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
     value[isl] = v
     finite = int(1)
@@ -1571,7 +1595,7 @@ class FusedNewton:
             arrays[name] for name in ("q", "trial_q", "grad", "hess", "chol", "dq")
         )
         wk.first, wk.stats = arrays["first"], arrays["stats"]
-        wk.chol4, wk.dq4, wk.hess4 = arrays["chol4"], arrays["dq4"], arrays["hess4"]
+        wk.chol4, wk.dq4, wk.hess4, wk.grad4 = arrays["chol4"], arrays["dq4"], arrays["hess4"], arrays["grad4"]
         self._limits = [arrays["threshold"], arrays["trust"]]
         self._bound_launches.clear()  # solve_split's launch holds the limits' arrays (packed by value)
         st = self._step
@@ -1609,8 +1633,8 @@ class FusedNewton:
             raise ValueError(f"island size {size}: the kernels read the factor four entries at a time and need a multiple "
                              "of 4 (every object has 12 unknowns per handle)")
         views = {name: _wp(tensor) for name, tensor in scratch.items()}
-        views["chol4"], views["dq4"], views["hess4"] = (
-            _wp(scratch[name].view(-1, 4), wp.vec4d) for name in ("chol", "dq", "hess")
+        views["chol4"], views["dq4"], views["hess4"], views["grad4"] = (
+            _wp(scratch[name].view(-1, 4), wp.vec4d) for name in ("chol", "dq", "hess", "grad")
         )
         entry = (scratch, views)
         self._island_scratch[key] = entry
