@@ -16,8 +16,9 @@ reference runs measure how well the outcome is determined at all:
   geometry: spheres of radius r round edges and corners by about r, and where a tumbling object lands
   on an edge decides its bounce).
 A preset whose error is near these floors is as accurate as the scene allows this comparison to show.
-One more row, ``draft_exact_matrix``, is ``draft`` with ``lagged_elastic_hessian=False``: the time and error
-of the lagged elastic Newton matrix against the exact one, side by side.
+Two more rows: ``draft_exact_matrix`` is ``draft`` with ``lagged_elastic_hessian=False`` (the time and error
+of the lagged elastic Newton matrix against the exact one, side by side), ``draft_formed_matrix`` is ``draft``
+with ``elastic_hessian_reuse=0`` (the kept matrix formed at every (sub)step, not reused across them).
 
 Scenes with several variants (``SCENE_VARIANTS``: the rigid drop is repeated with 5 spins and
 orientations) report the mean over variants, with the per-variant errors in the JSON.
@@ -49,6 +50,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 PRESETS = ["draft", "standard", "high", "reference"]
 # draft as it would run with an exact elastic Newton matrix at every iteration (``lagged_elastic_hessian=False``)
 EXACT_DRAFT = "draft_exact_matrix"
+# draft with its kept elastic matrix formed at every (sub)step (``elastic_hessian_reuse=0``)
+FORMED_DRAFT = "draft_formed_matrix"
 FPS = 25.0
 GRAVITY = (0.0, 0.0, -9.81)
 
@@ -175,15 +178,18 @@ def main() -> None:
             )
             runs[contact_name] = run_one(scene_name, contact_ref, seconds, training, label=contact_name, variant=variant)
             # the lagged elastic matrix's trade: draft with the exact matrix at every Newton iteration
-            runs[EXACT_DRAFT] = run_one(scene_name, presets["draft"].replace(lagged_elastic_hessian=False), seconds,
-                                        training, label=EXACT_DRAFT, variant=variant)  # fmt: skip
+            exact = presets["draft"].replace(lagged_elastic_hessian=False, elastic_hessian_reuse=0.0)
+            runs[EXACT_DRAFT] = run_one(scene_name, exact, seconds, training, label=EXACT_DRAFT, variant=variant)
+            # ... and the reuse's trade: draft with the kept matrix formed at every (sub)step
+            formed = presets["draft"].replace(elastic_hessian_reuse=0.0)
+            runs[FORMED_DRAFT] = run_one(scene_name, formed, seconds, training, label=FORMED_DRAFT, variant=variant)
             for name, run in runs.items():
                 row = {k: v for k, v in run.items() if not k.startswith("_")}
                 row.update(compare(run, runs["reference"]))
                 row["speedup_vs_reference"] = runs["reference"]["wall_s"] / run["wall_s"]
                 per_variant.setdefault(name, []).append(row)
         merged = {name: _mean_over_variants(variant_rows) for name, variant_rows in per_variant.items()}
-        for name in PRESETS + [floor_name, "reference_seed1", contact_name, EXACT_DRAFT]:
+        for name in PRESETS + [floor_name, "reference_seed1", contact_name, EXACT_DRAFT, FORMED_DRAFT]:
             row = merged[name]
             row["speedup_vs_reference"] = merged["reference"]["wall_s"] / row["wall_s"]
             rows.append(row)

@@ -22,6 +22,10 @@ class QualityPreset:
     ``lagged_elastic_hessian``: a soft object's elastic Newton matrix is formed once per (sub)step and kept for
     its later iterations (modified Newton, :class:`data_gen.sim.step_objective.StepObjective`), instead of at
     every iteration.
+    ``elastic_hessian_reuse`` (with ``lagged_elastic_hessian``; 0 turns it off): a soft object's kept matrix also
+    serves its later (sub)steps while no entry of any of its cubature points' deformation gradients (at the
+    solve's predicted start) differs from those it was formed at by more than this (dimensionless); the matrix
+    is only Newton's step direction, so every solve still meets ``newton_tolerance`` on the exact gradient.
     """
 
     name: str
@@ -39,6 +43,7 @@ class QualityPreset:
     sleep_speed_m_s: float
     sleep_steps: int
     lagged_elastic_hessian: bool = False
+    elastic_hessian_reuse: float = 0.0
 
     def __post_init__(self) -> None:
         positive_ints = (
@@ -62,6 +67,15 @@ class QualityPreset:
         if not isinstance(self.lagged_elastic_hessian, bool):
             raise ValueError(
                 f"preset {self.name!r}: lagged_elastic_hessian={self.lagged_elastic_hessian!r} must be true or false"
+            )
+        if not 0.0 <= self.elastic_hessian_reuse < float("inf"):
+            raise ValueError(
+                f"preset {self.name!r}: elastic_hessian_reuse={self.elastic_hessian_reuse!r} must be finite and >= 0"
+            )
+        if self.elastic_hessian_reuse > 0 and not self.lagged_elastic_hessian:
+            raise ValueError(
+                f"preset {self.name!r}: elastic_hessian_reuse={self.elastic_hessian_reuse!r} needs "
+                "lagged_elastic_hessian: true (without it the matrix is formed at every iteration)"
             )
         if self.sleep_speed_m_s < 0:
             raise ValueError(f"preset {self.name!r}: sleep_speed_m_s={self.sleep_speed_m_s!r} must be >= 0")

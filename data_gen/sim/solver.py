@@ -71,6 +71,7 @@ from data_gen.sim.reduced import DTYPE, ReducedObject
 from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.fused_newton import FusedNewton, SubstepResult
+from data_gen.sim.kept_elastic import KeptElasticMatrices
 from data_gen.sim.step_objective import (
     ContactForces,
     SolveWorkspace,
@@ -270,7 +271,7 @@ class _GroupSetup:
     """What a solve of some islands needs besides the states; it depends only on the islands.
 
     Attributes:
-        objects: body indices in solve order (island by island).
+        objects: body indices in solve order (island by island); index: the same as a tensor.
         slot_of: (num bodies,) solve slot of each body, -1 if not solved.
         model: the objects' rows of the solver's :class:`Model`; layout: their :class:`DofLayout`.
         padded: (sum 12 H,) positions of the objects' concatenated unpadded q-orderings in the flattened
@@ -280,6 +281,7 @@ class _GroupSetup:
     """
 
     objects: list[int]
+    index: torch.Tensor
     slot_of: np.ndarray
     model: Model
     layout: DofLayout
@@ -360,6 +362,12 @@ class ImplicitEulerSolver:
         # per object: (qdot tensor, its version, sphere velocities (n, 3) m/s, fastest speed m/s)
         self._velocity_cache: list[tuple[torch.Tensor, int, torch.Tensor, float] | None] = [None] * len(bodies)
         self._record_spheres = True  # this step keeps per-sphere force records (see step)
+        # soft objects' elastic Newton matrices kept across (sub)steps (preset.elastic_hessian_reuse)
+        self._kept_elastic = (
+            KeptElasticMatrices(self.model.cub_c, preset.elastic_hessian_reuse)
+            if preset.elastic_hessian_reuse > 0 and self.fused_newton and not all(self._one_handle)
+            else None
+        )
         self.counters: dict[str, int] = dict.fromkeys(
             (
                 "evaluations",
@@ -376,6 +384,8 @@ class ImplicitEulerSolver:
                 "fused_handed_back",
                 "split_island_solves",
                 "split_handed_back",
+                "elastic_matrices_formed",
+                "elastic_matrices_reused",
             ),
             0,
         )
@@ -743,11 +753,13 @@ class ImplicitEulerSolver:
         island_slot = torch.tensor([island_of[k] for k in objects], dtype=torch.int64)
         slot_of = np.full(len(self.bodies), -1, dtype=np.int64)
         slot_of[objects] = np.arange(len(objects))
-        model = self.model.select(torch.tensor(objects, dtype=torch.int64))
+        index = torch.tensor(objects, dtype=torch.int64)
+        model = self.model.select(index)
         width = 3 * self.model.columns
         padded = [self._padded_index[o] + slot * width for slot, o in enumerate(objects)]
         setup = _GroupSetup(
             objects=objects,
+            index=index,
             slot_of=slot_of,
             model=model,
             layout=DofLayout.build(model.num_handles, island_slot, model.columns),
@@ -804,11 +816,18 @@ class ImplicitEulerSolver:
         self.counters["island_solves"] += len(islands)
         self.counters["island_object_solves"] += len(objects)
         tm_n, tmdot = self._padded_states(setup)
+        kept = self._kept_elastic
+        if kept is not None and not any(self._one_handle[k] for k in objects):  # (one group of soft objects)
+            strain = kept.strain(setup.index, tm_n + h * tmdot)  # at the predicted start, where K is formed
+            reused = kept.lookup(setup.index, strain)
+        else:
+            strain = reused = None
         objective = StepObjective(
             model, layout, self.scene_distance, self.gravity, tm_n, tmdot, h,
             self.preset.contact_stiffness_factor, self.preset.friction_smoothing_m_s * h,
             self._group_pairs(objects, slot_of, ps), setup.objective_workspace(self.scene_distance),
             lagged_elastic_hessian=self.preset.lagged_elastic_hessian, kernel_evaluation=self.fused_newton,
+            reused_elastic_hessian=reused,
         )  # fmt: skip
 
         def check_gradient(grad: torch.Tensor) -> None:
@@ -851,6 +870,10 @@ class ImplicitEulerSolver:
                               on_gradient=check_gradient, on_indefinite=indefinite)  # fmt: skip
         for key, value in result.counters.items():
             self.counters[key] += value
+        if strain is not None and objective.formed_elastic_hessian is not None:
+            kept.keep(setup.index, strain, None if reused is None else reused[0], objective.formed_elastic_hessian)
+            self.counters["elastic_matrices_formed"] = kept.formed
+            self.counters["elastic_matrices_reused"] = kept.reused
         tm = layout.to_objects(result.q)
         q = tm.reshape(-1)[setup.padded]  # the objects' unpadded states, concatenated
         if not bool(torch.isfinite(q).all()):

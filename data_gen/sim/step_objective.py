@@ -137,8 +137,12 @@ class StepObjective(Objective):
     blocks) for every later evaluation; their energies and gradients stay exact. Newton's method becomes a
     modified Newton method: the same minimum and convergence test, each iteration without the per-point
     9 x 9 Hessians and their reduction, which cost most of a soft object's evaluation. One objective serves one
-    (sub)step, so every step starts from a fresh matrix. One-handle objects always get theirs formed (it is
-    one point's: nothing to save)."""
+    (sub)step, so every step starts from a fresh matrix unless ``reused_elastic_hessian`` = (mask (n,) bool,
+    matrices (n, 3K, 3K)) hands it the kept matrices of an earlier (sub)step for the objects in ``mask`` (the
+    solver's choice, :attr:`QualityPreset.elastic_hessian_reuse`; only where the first evaluation forms the
+    matrix from the elastic kernel's point Hessians, :meth:`_kept_matrix_at`): then only the others' are formed,
+    and :attr:`formed_elastic_hessian` holds every object's matrix of this objective. One-handle objects always
+    get theirs formed (it is one point's: nothing to save)."""
 
     def __init__(
         self,
@@ -155,9 +159,13 @@ class StepObjective(Objective):
         workspace: SolveWorkspace | None = None,
         lagged_elastic_hessian: bool = False,
         kernel_evaluation: bool = False,
+        reused_elastic_hessian: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> None:
         self.model, self.layout, self.scene, self.pairs = model, layout, scene, pairs
         self.lagged_elastic_hessian = lagged_elastic_hessian
+        self._reused_elastic_hessian = reused_elastic_hessian
+        # every object's kept elastic matrix (n, 3K, 3K), once :meth:`_kept_matrix_at` has formed or reused it
+        self.formed_elastic_hessian: torch.Tensor | None = None
         self._kept_elastic_hessian: dict[int, torch.Tensor] = {}  # per elastic group (lagged_elastic_hessian)
         self._base: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # (M, K, M + h^2 K assembled)
         # M + h^2 K with every object's elastic blocks the kept ones (what a kernel evaluation adds its contact
@@ -290,9 +298,19 @@ class StepObjective(Objective):
         Hessians of the elastic kernel reduced to the objects' matrices, without the energy and gradient terms
         (the kernel evaluation that follows computes those)."""
         _, cub_c, points = self.elastic_groups[0]
-        _, _, point_hess, _ = points.evaluate(self.layout.to_objects(q), True)
-        self._kept_elastic_hessian[0] = elastic_hessian(cub_c, point_hess)
-        return self._base_matrix(self.model.mass_matrix, self._kept_elastic_hessian[0])
+        reused = self._reused_elastic_hessian
+        if reused is not None and bool(reused[0].all()):  # every object's matrix from an earlier (sub)step
+            kept = reused[1]
+        else:
+            _, _, point_hess, _ = points.evaluate(self.layout.to_objects(q), True)
+            if reused is None or not bool(reused[0].any()):
+                kept = elastic_hessian(cub_c, point_hess)
+            else:  # only the objects without a reusable matrix get theirs formed
+                fresh = torch.nonzero(~reused[0])[:, 0]
+                kept = reused[1]  # (a fresh tensor per solve)
+                kept[fresh] = elastic_hessian(cub_c[fresh], point_hess[fresh])
+        self._kept_elastic_hessian[0] = self.formed_elastic_hessian = kept
+        return self._base_matrix(self.model.mass_matrix, kept)
 
     def _all_elastic_kept(self, elastic_hess: torch.Tensor) -> bool:
         """Whether ``elastic_hess`` is the kept matrix of every object (one deformable group, lagged)."""
