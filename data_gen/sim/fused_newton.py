@@ -66,6 +66,9 @@ LINE_SEARCH_FAILURES, LINE_SEARCH_EXTENDED, TRUST_LIMITED = 5, 6, 7
 NUM_STATS = 8
 # island-sized work buffers are kept for this many (islands, unknowns) shapes (FusedNewton.relayout)
 _SCRATCH_SHAPES = 8
+# a split solve that started from soft objects' elastic matrices kept from earlier (sub)steps
+# (``QualityPreset.elastic_hessian_reuse``) and still runs after this many iterations forms them anew where it is
+REUSED_MATRIX_REFRESH = 6
 # ``derivatives`` of _evaluate: the gradient and only the contact part of the Newton matrix
 CONTACT_MATRIX_ONLY = wp.constant(2)
 # STATUS values
@@ -1866,7 +1869,7 @@ class FusedNewton:
             return torch.add(base, self.hess.view(n_isl, size, size), out=summed)
 
         running = [True] * n_isl
-        for _ in range(settings.iterations):
+        for iteration in range(settings.iterations):
             # an island that has stopped keeps its last matrix: only the running ones need a direction; the
             # matrices summed here are factorised in place (the first, the evaluation's, on a copy)
             in_place = hess is summed
@@ -1884,6 +1887,9 @@ class FusedNewton:
             if RUNNING not in codes:
                 break
             running = [code == RUNNING for code in codes]
+            if iteration + 1 == REUSED_MATRIX_REFRESH and objective.reuses_elastic_hessian:
+                # started from elastic matrices of earlier (sub)steps and still running: formed anew here
+                base = objective.refresh_kept_matrix(self.q.view(n_isl, size))
             hess = kept_plus_contact()
         return self._result(host_evaluations=1)  # (the objective's first evaluation)
 

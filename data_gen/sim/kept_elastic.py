@@ -55,15 +55,14 @@ class KeptElasticMatrices:
         self.reused += int(mask.sum())
         return mask, self._matrix[index]
 
-    def keep(self, index: torch.Tensor, strain: torch.Tensor, reused: torch.Tensor | None,
-             formed: torch.Tensor) -> None:  # fmt: skip
-        """After a solve of objects ``index`` at ``strain``: keep the matrices ``formed`` (n, 3K, 3K) of those
-        that did not reuse one (``reused``: :meth:`lookup`'s mask, None when nothing was reused)."""
-        if reused is not None:
-            fresh = torch.nonzero(~reused)[:, 0]
-            if not len(fresh):
+    def keep(self, index: torch.Tensor, strain: torch.Tensor, fresh: torch.Tensor, formed: torch.Tensor) -> None:
+        """After a solve of objects ``index``: keep the matrices ``formed`` (n, 3K, 3K) of those it formed
+        (``fresh`` (n,) bool) with the ``strain`` (:meth:`strain`) they were formed at."""
+        if not bool(fresh.all()):
+            rows = torch.nonzero(fresh)[:, 0]
+            if not len(rows):
                 return
-            index, strain, formed = index[fresh], strain[fresh], formed[fresh]
+            index, strain, formed = index[rows], strain[rows], formed[rows]
         self._strain[index] = strain
         self._matrix[index] = formed
         self._kept[index] = True

@@ -386,6 +386,7 @@ class ImplicitEulerSolver:
                 "split_handed_back",
                 "elastic_matrices_formed",
                 "elastic_matrices_reused",
+                "elastic_matrices_refreshed",
             ),
             0,
         )
@@ -871,7 +872,10 @@ class ImplicitEulerSolver:
         for key, value in result.counters.items():
             self.counters[key] += value
         if strain is not None and objective.formed_elastic_hessian is not None:
-            kept.keep(setup.index, strain, None if reused is None else reused[0], objective.formed_elastic_hessian)
+            if objective.refreshed_elastic_hessian:  # formed anew during the solve, at its states then
+                strain = kept.strain(setup.index, objective.formed_elastic_tm)
+                self.counters["elastic_matrices_refreshed"] += 1
+            kept.keep(setup.index, strain, objective.formed_elastic_mask, objective.formed_elastic_hessian)
             self.counters["elastic_matrices_formed"] = kept.formed
             self.counters["elastic_matrices_reused"] = kept.reused
         tm = layout.to_objects(result.q)

@@ -164,8 +164,13 @@ class StepObjective(Objective):
         self.model, self.layout, self.scene, self.pairs = model, layout, scene, pairs
         self.lagged_elastic_hessian = lagged_elastic_hessian
         self._reused_elastic_hessian = reused_elastic_hessian
-        # every object's kept elastic matrix (n, 3K, 3K), once :meth:`_kept_matrix_at` has formed or reused it
+        # every object's kept elastic matrix (n, 3K, 3K), once :meth:`_kept_matrix_at` has formed or reused it;
+        # which of them this objective formed (n,) bool, and at which states (n, 3, K)
         self.formed_elastic_hessian: torch.Tensor | None = None
+        self.formed_elastic_mask: torch.Tensor | None = None
+        self.formed_elastic_tm: torch.Tensor | None = None
+        self.reuses_elastic_hessian = False  # some object's kept matrix is an earlier (sub)step's
+        self.refreshed_elastic_hessian = False  # formed anew during the solve (refresh_kept_matrix)
         self._kept_elastic_hessian: dict[int, torch.Tensor] = {}  # per elastic group (lagged_elastic_hessian)
         self._base: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # (M, K, M + h^2 K assembled)
         # M + h^2 K with every object's elastic blocks the kept ones (what a kernel evaluation adds its contact
@@ -299,18 +304,46 @@ class StepObjective(Objective):
         (the kernel evaluation that follows computes those)."""
         _, cub_c, points = self.elastic_groups[0]
         reused = self._reused_elastic_hessian
-        if reused is not None and bool(reused[0].all()):  # every object's matrix from an earlier (sub)step
+        tm = self.layout.to_objects(q)
+        self.reuses_elastic_hessian = reused is not None and bool(reused[0].any())
+        if not self.reuses_elastic_hessian:
+            _, _, point_hess, _ = points.evaluate(tm, True)
+            kept = elastic_hessian(cub_c, point_hess)
+        elif bool(reused[0].all()):  # every object's matrix from an earlier (sub)step
             kept = reused[1]
-        else:
-            _, _, point_hess, _ = points.evaluate(self.layout.to_objects(q), True)
-            if reused is None or not bool(reused[0].any()):
-                kept = elastic_hessian(cub_c, point_hess)
-            else:  # only the objects without a reusable matrix get theirs formed
-                fresh = torch.nonzero(~reused[0])[:, 0]
-                kept = reused[1]  # (a fresh tensor per solve)
-                kept[fresh] = elastic_hessian(cub_c[fresh], point_hess[fresh])
-        self._kept_elastic_hessian[0] = self.formed_elastic_hessian = kept
+        else:  # only the objects without a reusable matrix get theirs formed
+            _, _, point_hess, _ = points.evaluate(tm, True)
+            fresh = torch.nonzero(~reused[0])[:, 0]
+            kept = reused[1]  # (a fresh tensor per solve)
+            kept[fresh] = elastic_hessian(cub_c[fresh], point_hess[fresh])
+        self._keep_formed(kept, None if reused is None else ~reused[0], tm)
         return self._base_matrix(self.model.mass_matrix, kept)
+
+    def _keep_formed(self, kept: torch.Tensor, mask: torch.Tensor | None, tm: torch.Tensor) -> None:
+        """Keep ``kept`` (n, 3K, 3K) as every object's elastic matrix, formed at states ``tm`` where ``mask``
+        (n,) (None: every object)."""
+        self._kept_elastic_hessian[0] = self.formed_elastic_hessian = kept
+        self.formed_elastic_mask = torch.ones(kept.shape[0], dtype=torch.bool) if mask is None else mask
+        self.formed_elastic_tm = tm
+
+    def refresh_kept_matrix(self, q: torch.Tensor) -> torch.Tensor:
+        """The elastic matrices this objective took from earlier (sub)steps formed anew at ``q`` (n_isl, N) and
+        kept from now on (a solve that started from them and has not converged after a few iterations, see
+        :meth:`FusedNewton.solve_split`; the others stay those formed at its start); returns the new
+        ``M + h^2 K`` per island (also :attr:`kept_matrix`)."""
+        _, cub_c, points = self.elastic_groups[0]
+        tm = self.layout.to_objects(q)
+        _, _, point_hess, _ = points.evaluate(tm, True)
+        stale = torch.nonzero(~self.formed_elastic_mask)[:, 0]
+        kept = self.formed_elastic_hessian.clone()
+        kept[stale] = elastic_hessian(cub_c[stale], point_hess[stale])
+        formed_tm = self.formed_elastic_tm.clone()
+        formed_tm[stale] = tm[stale]
+        self._keep_formed(kept, None, formed_tm)
+        self.reuses_elastic_hessian = False
+        self.refreshed_elastic_hessian = True
+        self._kept_base = self._base_matrix(self.model.mass_matrix, self._kept_elastic_hessian[0])
+        return self._kept_base
 
     def _all_elastic_kept(self, elastic_hess: torch.Tensor) -> bool:
         """Whether ``elastic_hess`` is the kept matrix of every object (one deformable group, lagged)."""
