@@ -899,7 +899,8 @@ def _take_update(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, th
             stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
         else:
             stats[isl, EVALUATIONS] += 1
-        trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band, wk.hess4, wk.tm4, wk.grad4)
+        trial, flagged = _evaluate(bd, sc, st, tm, isl, with_derivatives, grad, hess, band, wk.hess4, wk.tm4,
+                                   wk.grad4)  # fmt: skip
         ok = int(0)
         if t < line_search_steps:
             if trial <= value + wp.float64(ARMIJO_C) * alpha * slope + wp.float64(1e-14) * wp.abs(value):
@@ -1019,8 +1020,7 @@ def evaluate_islands_kernel(
     isl = wp.tid()
     _scene_margins(bd, sc, st, isl)
     _load_state(bd, wk.q, wk.tm, isl)
-    v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4,
-                              wk.grad4)  # fmt: skip
+    v, f = _evaluate(bd, sc, st, wk.tm, isl, derivatives, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4, wk.grad4)
     value[isl] = v
     flagged[isl] = f
 
@@ -1069,8 +1069,8 @@ def update_islands_kernel(
         return
     if outcome == NEED_DERIVATIVES:
         _load_state(bd, wk.q, wk.tm, isl)
-        v, flagged = _evaluate(bd, sc, st, wk.tm, isl, CONTACT_MATRIX_ONLY, wk.grad, wk.hess, wk.band, wk.hess4, wk.tm4,
-                              wk.grad4)  # fmt: skip
+        v, flagged = _evaluate(bd, sc, st, wk.tm, isl, CONTACT_MATRIX_ONLY, wk.grad, wk.hess, wk.band, wk.hess4,
+                               wk.tm4, wk.grad4)  # fmt: skip
         wk.stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
     value[isl] = v
     finite = int(1)

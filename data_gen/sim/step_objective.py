@@ -169,7 +169,6 @@ class StepObjective(Objective):
         self.formed_elastic_hessian: torch.Tensor | None = None
         self.formed_elastic_mask: torch.Tensor | None = None
         self.formed_elastic_tm: torch.Tensor | None = None
-        self.reuses_elastic_hessian = False  # some object's kept matrix is an earlier (sub)step's
         self.refreshed_elastic_hessian = False  # formed anew during the solve (refresh_kept_matrix)
         self._kept_elastic_hessian: dict[int, torch.Tensor] = {}  # per elastic group (lagged_elastic_hessian)
         self._base: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # (M, K, M + h^2 K assembled)
@@ -302,22 +301,31 @@ class StepObjective(Objective):
         """``M + h^2 K`` per island at ``q`` (n_isl, N), K kept (:meth:`_keeps_one_elastic_group`): the point
         Hessians of the elastic kernel reduced to the objects' matrices, without the energy and gradient terms
         (the kernel evaluation that follows computes those)."""
-        _, cub_c, points = self.elastic_groups[0]
         reused = self._reused_elastic_hessian
         tm = self.layout.to_objects(q)
-        self.reuses_elastic_hessian = reused is not None and bool(reused[0].any())
-        if not self.reuses_elastic_hessian:
-            _, _, point_hess, _ = points.evaluate(tm, True)
-            kept = elastic_hessian(cub_c, point_hess)
+        if reused is None or not bool(reused[0].any()):
+            kept = self._formed_at(tm, None, None)
         elif bool(reused[0].all()):  # every object's matrix from an earlier (sub)step
             kept = reused[1]
-        else:  # only the objects without a reusable matrix get theirs formed
-            _, _, point_hess, _ = points.evaluate(tm, True)
-            fresh = torch.nonzero(~reused[0])[:, 0]
-            kept = reused[1]  # (a fresh tensor per solve)
-            kept[fresh] = elastic_hessian(cub_c[fresh], point_hess[fresh])
+        else:  # only the objects without a reusable matrix get theirs formed (reused[1]: a new tensor per solve)
+            kept = self._formed_at(tm, torch.nonzero(~reused[0])[:, 0], reused[1])
         self._keep_formed(kept, None if reused is None else ~reused[0], tm)
         return self._base_matrix(self.model.mass_matrix, kept)
+
+    def _formed_at(self, tm: torch.Tensor, rows: torch.Tensor | None, kept: torch.Tensor | None) -> torch.Tensor:
+        """Elastic matrices (n, 3K, 3K) formed at states ``tm`` from the elastic kernel's point Hessians: every
+        object's (``rows`` None), or those of ``rows`` written into ``kept`` (returned)."""
+        _, cub_c, points = self.elastic_groups[0]
+        _, _, point_hess, _ = points.evaluate(tm, True)
+        if rows is None:
+            return elastic_hessian(cub_c, point_hess)
+        kept[rows] = elastic_hessian(cub_c[rows], point_hess[rows])
+        return kept
+
+    @property
+    def reuses_elastic_hessian(self) -> bool:
+        """Whether some object's kept elastic matrix is an earlier (sub)step's (until a refresh forms it here)."""
+        return self.formed_elastic_mask is not None and not bool(self.formed_elastic_mask.all())
 
     def _keep_formed(self, kept: torch.Tensor, mask: torch.Tensor | None, tm: torch.Tensor) -> None:
         """Keep ``kept`` (n, 3K, 3K) as every object's elastic matrix, formed at states ``tm`` where ``mask``
@@ -331,16 +339,12 @@ class StepObjective(Objective):
         kept from now on (a solve that started from them and has not converged after a few iterations, see
         :meth:`FusedNewton.solve_split`; the others stay those formed at its start); returns the new
         ``M + h^2 K`` per island (also :attr:`kept_matrix`)."""
-        _, cub_c, points = self.elastic_groups[0]
         tm = self.layout.to_objects(q)
-        _, _, point_hess, _ = points.evaluate(tm, True)
         stale = torch.nonzero(~self.formed_elastic_mask)[:, 0]
-        kept = self.formed_elastic_hessian.clone()
-        kept[stale] = elastic_hessian(cub_c[stale], point_hess[stale])
+        kept = self._formed_at(tm, stale, self.formed_elastic_hessian.clone())
         formed_tm = self.formed_elastic_tm.clone()
         formed_tm[stale] = tm[stale]
         self._keep_formed(kept, None, formed_tm)
-        self.reuses_elastic_hessian = False
         self.refreshed_elastic_hessian = True
         self._kept_base = self._base_matrix(self.model.mass_matrix, self._kept_elastic_hessian[0])
         return self._kept_base

@@ -12,7 +12,7 @@ from data_gen.sim.kept_elastic import KeptElasticMatrices
 from data_gen.sim.presets import available_presets, load_preset
 from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.step_objective import StepObjective
-from tests.sim.test_sim_warp_kernels import _setup
+from tests.sim.test_sim_warp_kernels import _setup, random_rates
 
 D = torch.float64
 GRAVITY = torch.tensor([0.0, 0.0, -9.81], dtype=D)
@@ -85,11 +85,7 @@ def _soft_step(seed: int = 3):
     """A step of three deformable objects (3, 2 and 4 handles; two islands; scene and pair contact) and its
     predicted state (island vectors)."""
     model, layout, distance, _, _, pairs, tm = _setup(StaticScene(), seed, (3, 2, 4))
-    gen = torch.Generator().manual_seed(seed + 1)
-    tmdot = torch.zeros_like(tm)
-    for o in range(model.num_objects):
-        cols = 4 * int(model.num_handles[o])
-        tmdot[o, :, :cols] = 0.3 * torch.randn(3, cols, generator=gen, dtype=D) / cols
+    tmdot = random_rates(model, tm, seed + 1)
 
     def objective(reused=None) -> StepObjective:
         return StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs,
@@ -125,19 +121,11 @@ def test_objective_takes_the_reused_matrices_and_forms_only_the_others():
 
 
 def _soft_column(preset, tmp_path):
-    from data_gen.sim.material import Material
-    from data_gen.sim.world import SimObjectSpec, Simulator
-    from tests.sim.test_sim_collision import TINY_TRAINING
-    from tests.sim.test_sim_column import grid_box
+    from data_gen.sim.world import Simulator
+    from tests.sim.test_sim_column import staggered_soft_column
 
-    half = (0.07, 0.07, 0.05)
-    specs = [
-        SimObjectSpec(f"soft_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e5, 0.3, 1000.0),
-                      position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=2,
-                      skinning_settings=TINY_TRAINING)
-        for k in range(3)
-    ]  # fmt: skip
-    sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), preset, seed=0, skinning_cache_dir=str(tmp_path))
+    sim = Simulator(StaticScene(), staggered_soft_column(), (0.0, 0.0, -9.81), preset, seed=0,
+                    skinning_cache_dir=str(tmp_path))  # fmt: skip
     return sim.run(13, fps=25.0)
 
 

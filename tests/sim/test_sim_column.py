@@ -13,6 +13,20 @@ def grid_box(half_extents_m, counts):
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
 
 
+def staggered_soft_column(count: int = 3) -> list[SimObjectSpec]:
+    """``count`` soft two-handle boxes (14 x 14 x 10 cm, E = 1e5 Pa) stacked 12 cm apart, each shifted by a
+    centimetre: they fall, land on the ground and on each other (pairs, friction, one island or several)."""
+    from tests.sim.test_sim_collision import TINY_TRAINING  # (test_sim_collision imports grid_box from here)
+
+    half = (0.07, 0.07, 0.05)
+    return [
+        SimObjectSpec(f"soft_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e5, 0.3, 1000.0),
+                      position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=2,
+                      skinning_settings=TINY_TRAINING)
+        for k in range(count)
+    ]  # fmt: skip
+
+
 def test_column_top_displacement_and_reaction():
     length, young, rho, g = 1.0, 1e6, 1000.0, 9.81
     layers = 20

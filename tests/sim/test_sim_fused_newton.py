@@ -16,7 +16,7 @@ from data_gen.sim.newton import NewtonSettings, minimise
 from data_gen.sim.presets import load_preset
 from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
 from data_gen.sim.step_objective import StepObjective
-from tests.sim.test_sim_warp_kernels import _setup
+from tests.sim.test_sim_warp_kernels import _setup, random_rates
 
 D = torch.float64
 GRAVITY = torch.tensor([0.0, 0.0, -9.81], dtype=D)
@@ -35,11 +35,7 @@ def _objective(scene: StaticScene, seed: int = 3, speed: float = 0.3, handles: t
     """A step of the three-object set of the kernel tests (by default 1, 3 and 2 handles; two islands, pairs
     within an island and against a frozen partner), moving at ``speed`` (m/s scale) from its start."""
     model, layout, distance, _, _, pairs, tm = _setup(scene, seed, handles)
-    gen = torch.Generator().manual_seed(seed + 1)
-    tmdot = torch.zeros_like(tm)
-    for o in range(model.num_objects):
-        cols = 4 * int(model.num_handles[o])
-        tmdot[o, :, :cols] = speed * torch.randn(3, cols, generator=gen, dtype=D) / cols
+    tmdot = random_rates(model, tm, seed + 1, speed)
     objective = StepObjective(model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs)
     fused = FusedNewton(model, layout, objective.contact, objective.island_mass_kg, objective.min_median_radius_m)
     return objective, fused, layout.to_islands(tm + H_S * tmdot)
@@ -620,10 +616,8 @@ def _captured_soft_solves(tmp_path, max_solves: int = 30):
     into a staggered column, batched path: per solve an objective of its own with the kernel evaluation and
     the kept matrix (what ``solve_split`` serves), and the start, scale, trust radius and settings the solver
     passed to ``minimise``."""
-    from data_gen.sim.material import Material
-    from data_gen.sim.world import SimObjectSpec, Simulator
-    from tests.sim.test_sim_collision import TINY_TRAINING
-    from tests.sim.test_sim_column import grid_box
+    from data_gen.sim.world import Simulator
+    from tests.sim.test_sim_column import staggered_soft_column
 
     import data_gen.sim.solver as solver_module
 
@@ -641,13 +635,7 @@ def _captured_soft_solves(tmp_path, max_solves: int = 30):
             ))  # fmt: skip
         return original(objective, q0, scale, trust, settings, **kwargs)
 
-    half = (0.07, 0.07, 0.05)
-    specs = [
-        SimObjectSpec(f"soft_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e5, 0.3, 1000.0),
-                      position_m=(0.01 * k, 0.01 * (k % 2), 0.06 + 0.12 * k), num_handles=2,
-                      skinning_settings=TINY_TRAINING)
-        for k in range(3)
-    ]  # fmt: skip
+    specs = staggered_soft_column()
     solver_module.minimise = capture
     try:
         sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), "draft", seed=0, fused_newton=False,

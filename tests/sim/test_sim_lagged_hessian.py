@@ -9,7 +9,7 @@ from data_gen.sim.newton import NewtonSettings, minimise
 from data_gen.sim.presets import available_presets, load_preset
 from data_gen.sim.static_scene import StaticScene
 from data_gen.sim.step_objective import StepObjective
-from tests.sim.test_sim_warp_kernels import _setup
+from tests.sim.test_sim_warp_kernels import _setup, random_rates
 
 D = torch.float64
 GRAVITY = torch.tensor([0.0, 0.0, -9.81], dtype=D)
@@ -20,11 +20,7 @@ def _objectives(seed: int = 3):
     """The same step (objects of 1, 3 and 2 handles; two islands; scene and pair contact) with the exact and
     the lagged elastic matrix, and its predicted state (island vectors)."""
     model, layout, distance, _, _, pairs, tm = _setup(StaticScene(), seed, (1, 3, 2))
-    gen = torch.Generator().manual_seed(seed + 1)
-    tmdot = torch.zeros_like(tm)
-    for o in range(model.num_objects):
-        cols = 4 * int(model.num_handles[o])
-        tmdot[o, :, :cols] = 0.3 * torch.randn(3, cols, generator=gen, dtype=D) / cols
+    tmdot = random_rates(model, tm, seed + 1)
     args = (model, layout, distance, GRAVITY, tm, tmdot, H_S, 20.0, 0.01 * H_S, pairs)
     return StepObjective(*args), StepObjective(*args, lagged_elastic_hessian=True), layout.to_islands(tm + H_S * tmdot)
 

@@ -20,6 +20,17 @@ from tests.sim.test_sim_batched_terms import _model
 D = torch.float64
 
 
+def random_rates(model, tm: torch.Tensor, seed: int, speed: float = 0.3) -> torch.Tensor:
+    """Rates (n, 3, K) of the padded states ``tm``: per object ``speed`` (m/s scale) times a seeded normal draw,
+    divided by its column count (zero on padding)."""
+    gen = torch.Generator().manual_seed(seed)
+    tmdot = torch.zeros_like(tm)
+    for o in range(model.num_objects):
+        cols = 4 * int(model.num_handles[o])
+        tmdot[o, :, :cols] = speed * torch.randn(3, cols, generator=gen, dtype=D) / cols
+    return tmdot
+
+
 def _setup(scene: StaticScene, seed: int, handles: tuple[int, int, int] = (1, 3, 2)):
     """Three objects (1, 3 and 2 handles) near the scene; objects 0 and 2 form one island, 1 the other."""
     objs, model = _model(handles)
