@@ -515,13 +515,16 @@ class FrameRecorder:
                     "angular_velocity_rad_s": None,
                     "asleep": np.bool_(asleep[k]),
                 }
-        for k, model in enumerate(self.models):
-            if self._grouped[k]:
-                continue
-            frames[k], rigids[k] = _object_frame(
-                model, self.contacts[k], self.constants[k], qs[k], qdots[k], forces[k], partners[k],
-                asleep[k], None if sphere_forces is None else sphere_forces[k],
+        rest = np.flatnonzero(~self._grouped).tolist()
+        if rest:  # the other objects: per-object geometry, their rigid sums and stresses in batched calls
+            rest_frames, rest_rigids = _object_frames(
+                [self.models[k] for k in rest], [self.contacts[k] for k in rest], [self.constants[k] for k in rest],
+                [qs[k] for k in rest], [qdots[k] for k in rest], [forces[k] for k in rest],
+                [partners[k] for k in rest], [asleep[k] for k in rest],
+                None if sphere_forces is None else [sphere_forces[k] for k in rest],
             )  # fmt: skip
+            for k, frame, rigid in zip(rest, rest_frames, rest_rigids):
+                frames[k], rigids[k] = frame, rigid
         if rigids:  # orientations and angular velocities of all objects at once (batched SVD and least squares)
             rotations = rotation_from_cross_covariance(np.stack([r.cross_covariance_m2 for r in rigids]))
             omegas = angular_velocities_from_moments(
@@ -554,6 +557,88 @@ class FrameRecorder:
                 )
             )
         return out
+
+
+def _object_frames(
+    models: list[ReducedObject],
+    contacts: list[ContactPoints],
+    constants: list[ObjectFrameConstants],
+    qs: list[torch.Tensor],
+    qdots: list[torch.Tensor],
+    forces: list[torch.Tensor],
+    partners: list[torch.Tensor],
+    asleep: list[bool],
+    sphere_forces: list[torch.Tensor] | None,
+) -> tuple[list[dict], list[RigidFrame]]:
+    """:func:`_object_frame` of several objects, bit for bit: each object's positions and deformation gradients
+    as there, but the rigid-body sums of objects with the same basis width in one :func:`rigid_frames` call and
+    the hydrostatic stresses from their deformation gradients in one call over all their points (the same
+    elementwise formulas; a frame of five soft objects took five of each)."""
+    n = len(models)
+    geometry = []  # per object: cubature positions, F (None: uniform), det F, sphere centres, q and qdot as numpy
+    for model, contact, const, q in zip(models, contacts, constants, qs):
+        x = model.positions(q)
+        if const.uniform_f:  # the same F at every point: one point's, its determinant repeated
+            F = None
+            det_f = np.full(model.num_points, det3(deformation_from_tmat(model.c[:1], model.tmat(q)).numpy())[0])
+        else:
+            F = model.deformation_gradients(q)
+            det_f = det3(F.numpy())
+        geometry.append((x, F, det_f, contact.positions(q)))
+    rigids: list[RigidFrame | None] = [None] * n
+    by_width: dict[int, list[int]] = {}
+    for k, model in enumerate(models):
+        by_width.setdefault(constants[k].moments.mean_basis.shape[0], []).append(k)
+    for members in by_width.values():
+        mo = [constants[k].moments for k in members]
+        stacked = rigid_frames(
+            np.stack([m.second_moment for m in mo]), np.stack([m.com_rest_m for m in mo]),
+            np.stack([m.mean_basis for m in mo]), np.array([m.mass_kg for m in mo]),
+            np.stack([qs[k].numpy().reshape(3, -1) for k in members]),
+            np.stack([qdots[k].numpy().reshape(3, -1) for k in members]),
+        )  # fmt: skip
+        for k, rigid in zip(members, stacked):
+            rigids[k] = rigid
+    stresses: list[np.ndarray | None] = [None] * n
+    from_f = []  # objects whose stress comes from their deformation gradients
+    for k, model in enumerate(models):
+        if sphere_forces is not None and model.num_handles == 1:  # the mean stress theorem
+            mean = rigid_mean_hydrostatic_from_spin_pa(
+                constants[k].volume_m3, rigids[k].com_m, rigids[k].spin_j, geometry[k][3].numpy(),
+                constants[k].contact_radius_m, sphere_forces[k].numpy(),
+            )  # fmt: skip
+            stresses[k] = np.full(model.num_points, mean)
+        else:
+            from_f.append(k)
+    if from_f:
+        fs = [models[k].deformation_gradients(qs[k]) if geometry[k][1] is None else geometry[k][1] for k in from_f]
+        counts = [len(f) for f in fs]
+        per_point = [
+            torch.cat([torch.as_tensor(getattr(models[k], name), dtype=DTYPE).expand(c) for k, c in zip(from_f, counts)])
+            for name in ("mu_pa", "lam_pa")
+        ]
+        all_stress = mat.hydrostatic_stress(torch.cat(fs), *per_point).numpy()
+        for k, part in zip(from_f, np.split(all_stress, np.cumsum(counts)[:-1])):
+            stresses[k] = part
+    frames = []
+    for k in range(n):
+        x, _, det_f, sphere_x = geometry[k]
+        frames.append({
+            "handle_transforms": qs[k].numpy()[constants[k].z_from_q],
+            "cubature_positions_m": x.numpy(),
+            "contact_positions_m": sphere_x.numpy(),
+            "gravity_force_n": constants[k].gravity_force_n,
+            "contact_force_n": forces[k].numpy().copy(),
+            "contact_partner": partners[k].numpy().copy(),
+            "hydrostatic_stress_pa": stresses[k],
+            "det_f": det_f,
+            "com_m": rigids[k].com_m,
+            "orientation_wxyz": None,  # FrameRecorder.record fills these two for all objects at once
+            "velocity_m_s": rigids[k].velocity_m_s,
+            "angular_velocity_rad_s": None,
+            "asleep": np.bool_(asleep[k]),
+        })  # fmt: skip
+    return frames, rigids
 
 
 def _object_frame(

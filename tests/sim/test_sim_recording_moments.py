@@ -16,6 +16,8 @@ from data_gen.sim import material as mat
 from data_gen.sim.contact_points import ContactPoints
 from data_gen.sim.recording import (
     FrameRecorder,
+    _object_frame,
+    _object_frames,
     InertiaMoments,
     angular_velocity,
     det3,
@@ -314,3 +316,45 @@ def test_one_handle_groups_record_what_the_per_object_frames_record():
     stress = [f["hydrostatic_stress_pa"][0] for f in grouped.frames[0]]
     assert stress[0] != stress[1]  # with sphere forces (mean stress theorem) and without (the uniform F)
 
+
+
+def test_batched_frames_of_several_objects_equal_the_per_object_frames():
+    """``FrameRecorder`` takes the objects in no one-handle group (``_object_frames``) with their rigid-body sums
+    batched per basis width and their stresses in one call over all their points: every recorded array equals, bit
+    for bit, what ``_object_frame`` records object by object, for objects of 3, 2, 3 and 1 handles (two widths
+    shared), one with separate inertia particles, one of another material (its stress differs), with and without
+    sphere forces (the one-handle object then takes the mean stress theorem)."""
+    objs = [_object(3, 31, None), _object(2, 32, 12), _object(3, 33, None), _object(2, 34, None)]
+    soft = objs[2][0]
+    mu, lam = mat.lame_parameters(3e5, 0.45)
+    objs[2] = (ReducedObject(soft.points_rest, soft.volumes_m3, 900.0, soft.weights, soft.grads, mu, lam), objs[2][1])
+    one = _object(1, 35, None)[0]  # a one-handle object whose basis is not [I; 0] (a grouped one would be)
+    grads = 0.3 * torch.randn(one.num_points, 1, 3, generator=torch.Generator().manual_seed(35), dtype=D)
+    objs.append((ReducedObject(one.points_rest, one.volumes_m3, 900.0, one.weights, grads, one.mu_pa, one.lam_pa),
+                 _object(1, 35, None)[1]))  # fmt: skip
+    models, contacts = [o for o, _ in objs], [c for _, c in objs]
+    n = len(objs)
+    recorder = FrameRecorder([f"o{k}" for k in range(n)], list(range(1, n + 1)), models, contacts, GRAVITY)
+    assert not recorder._grouped.any()
+    gen = torch.Generator().manual_seed(6)
+    for frame in range(2):
+        states = [_random_state(o, 200 * frame + k) for k, o in enumerate(models)]
+        qs, qdots = [s_[0] for s_ in states], [s_[1] for s_ in states]
+        forces = [torch.randn(o.num_points, 3, generator=gen, dtype=D) for o in models]
+        partners = [torch.randint(-1, 3, (o.num_points,), generator=gen) for o in models]
+        sphere = [torch.randn(c.num_points, 3, generator=gen, dtype=D) for c in contacts] if frame == 0 else None
+        asleep = [bool(k % 2) for k in range(n)]
+        batched, batched_rigid = _object_frames(models, contacts, recorder.constants, qs, qdots, forces, partners,
+                                                asleep, sphere)  # fmt: skip
+        for k in range(n):
+            single, rigid = _object_frame(models[k], contacts[k], recorder.constants[k], qs[k], qdots[k], forces[k],
+                                          partners[k], asleep[k], None if sphere is None else sphere[k])  # fmt: skip
+            assert batched[k].keys() == single.keys()
+            for key in single:
+                np.testing.assert_array_equal(batched[k][key], single[key], err_msg=f"object {k} {key}")
+            for a, b in zip(batched_rigid[k], rigid):
+                np.testing.assert_array_equal(a, b, err_msg=f"object {k} rigid frame")
+        stress = [f["hydrostatic_stress_pa"] for f in batched]
+        assert not np.allclose(stress[2], stress[0])  # the other material
+        if sphere is not None:  # the one-handle object: one mean stress from its sphere forces
+            assert np.unique(stress[4]).size == 1
