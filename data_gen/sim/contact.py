@@ -94,7 +94,8 @@ def _candidate_pairs_kernel(
     object_reach: wp.array(dtype=wp.float64),
     ordered: int,
     margin: wp.float64,
-    cell_width: wp.float64,
+    grid_width: wp.array(dtype=wp.float64),
+    close: wp.array(dtype=wp.int32),
     grid_dims: wp.array(dtype=wp.vec3i),
     grid_first: wp.array(dtype=wp.int32),
     cell_start: wp.array(dtype=wp.int32),
@@ -103,7 +104,10 @@ def _candidate_pairs_kernel(
     count: wp.array(dtype=wp.int32),
     pairs: wp.array(dtype=wp.int32, ndim=2),
 ):
+    if close[0] == 0:  # every two objects apart (_grid_kernel): no pair
+        return
     i = wp.tid()
+    cell_width = grid_width[0]
     p = points[i]
     a = object_ids[i]
     own = radii[i] + margin + point_margins[i]
@@ -148,16 +152,100 @@ def _candidate_pairs_kernel(
                                 pairs[slot, 1] = j
 
 
-def _boxes_within_reach(lo: np.ndarray, hi: np.ndarray, reach: np.ndarray, margin_m: float) -> bool:
-    """Whether some two objects' bounding boxes (m,) x (3,) of their points, m, are closer on every axis than
-    their reaches (m,) m (largest radius + own margin of each) plus ``margin_m``: a pair of points passing the
-    search's test needs it (the gap between the boxes bounds their distance from below). A relative 1e-9
-    covers round-off."""
-    gap = np.maximum(lo[None, :, :] - hi[:, None, :], lo[:, None, :] - hi[None, :, :]).max(2)  # (m, m) m
-    limit = (reach[:, None] + reach[None, :] + margin_m) * (1.0 + 1e-9)
-    close = gap < limit
-    np.fill_diagonal(close, False)
-    return bool(close.any())
+@wp.kernel
+def _grid_kernel(
+    points: wp.array(dtype=wp.vec3d),
+    object_ids: wp.array(dtype=wp.int32),
+    radii: wp.array(dtype=wp.float64),
+    point_margins: wp.array(dtype=wp.float64),
+    margin: wp.float64,
+    width0: wp.array(dtype=wp.float64),
+    limit: int,
+    pair_count: wp.array(dtype=wp.int32),
+    box_lo: wp.array(dtype=wp.vec3d),
+    box_hi: wp.array(dtype=wp.vec3d),
+    object_reach: wp.array(dtype=wp.float64),
+    close: wp.array(dtype=wp.int32),
+    grid_width: wp.array(dtype=wp.float64),
+    grid_dims: wp.array(dtype=wp.vec3i),
+    grid_first: wp.array(dtype=wp.int32),
+    cell_start: wp.array(dtype=wp.int32),
+    cursor: wp.array(dtype=wp.int32),
+    point_cell: wp.array(dtype=wp.int32),
+    cell_points: wp.array(dtype=wp.int32),
+):
+    """One thread: what :func:`_candidate_pairs_kernel` searches, from the points (m objects, ``object_ids``
+    0..m-1). Each object's bounding box of its points and its reach (largest radius plus own margin); ``close[0]``
+    = whether some two objects' boxes are closer on every axis than their reaches plus ``margin`` (a pair of points
+    passing the search's test needs it; a relative 1e-9 covers round-off), else nothing more is built. Then each
+    object's grid over its box: cells ``width0`` wide, widened (by at least 5 % a time) until all grids hold at most
+    ``limit`` cells (``grid_width[0]``), numbered object by object with z varying fastest; ``cell_start[c]`` the
+    first of cell c's points in ``cell_points`` (a counting sort of the points by cell; ``cursor``, ``point_cell``
+    scratch). A serial loop over the points: the host's array calls it replaces cost more than the arithmetic.
+    ``width0[0]`` is read from the device (the launch is packed once and replayed); ``pair_count[0]`` is cleared for
+    the search that follows."""
+    pair_count[0] = 0
+    n = points.shape[0]
+    m = box_lo.shape[0]
+    huge = wp.float64(1.0e300)
+    for c in range(m):
+        box_lo[c] = wp.vec3d(huge, huge, huge)
+        box_hi[c] = wp.vec3d(-huge, -huge, -huge)
+        object_reach[c] = -huge
+    for i in range(n):
+        c = object_ids[i]
+        box_lo[c] = wp.min(box_lo[c], points[i])
+        box_hi[c] = wp.max(box_hi[c], points[i])
+        object_reach[c] = wp.max(object_reach[c], radii[i] + point_margins[i])
+    near = int(0)
+    for a in range(m):
+        for c in range(a + 1, m):
+            gap = wp.max(box_lo[c] - box_hi[a], box_lo[a] - box_hi[c])  # per axis, m
+            limit_ac = (object_reach[a] + object_reach[c] + margin) * wp.float64(1.000000001)
+            if wp.max(wp.max(gap[0], gap[1]), gap[2]) < limit_ac:
+                near = 1
+    close[0] = near
+    if near == 0:
+        return
+    width = width0[0]
+    cells = wp.float64(0.0)
+    while True:  # the cell counts in float64 (a tiny width cannot overflow them)
+        cells = wp.float64(0.0)
+        for c in range(m):
+            e = box_hi[c] - box_lo[c]
+            cells += (wp.floor(e[0] / width) + wp.float64(1.0)) * (wp.floor(e[1] / width) + wp.float64(1.0)) * (
+                wp.floor(e[2] / width) + wp.float64(1.0))  # fmt: skip
+        if cells <= wp.float64(limit):
+            break
+        width = width * wp.max(wp.float64(1.05), wp.pow(cells / wp.float64(limit), wp.float64(1.0) / wp.float64(3.0)))
+    grid_width[0] = width
+    total = int(0)
+    for c in range(m):
+        e = box_hi[c] - box_lo[c]
+        dims = wp.vec3i(int(wp.floor(e[0] / width)) + 1, int(wp.floor(e[1] / width)) + 1, int(wp.floor(e[2] / width)) + 1)
+        grid_dims[c] = dims
+        grid_first[c] = total
+        total += dims[0] * dims[1] * dims[2]
+    for k in range(total + 1):
+        cell_start[k] = 0
+    for i in range(n):
+        c = object_ids[i]
+        dims = grid_dims[c]
+        lo = box_lo[c]
+        p = points[i]
+        x = _cell_of(p[0] - lo[0], width, dims[0])
+        y = _cell_of(p[1] - lo[1], width, dims[1])
+        z = _cell_of(p[2] - lo[2], width, dims[2])
+        cell = grid_first[c] + (x * dims[1] + y) * dims[2] + z
+        point_cell[i] = cell
+        cell_start[cell + 1] += 1
+    for k in range(total):
+        cell_start[k + 1] += cell_start[k]
+        cursor[k] = cell_start[k]
+    for i in range(n):
+        cell = point_cell[i]
+        cell_points[cursor[cell]] = i
+        cursor[cell] += 1
 
 
 @dataclass(frozen=True)
@@ -166,20 +254,19 @@ class _ObjectTable:
 
     Attributes:
         object_ids, radii_m: the arrays as passed (copies).
-        dense: (n,) object index 0..m-1 per point on the device (int32); ``dense_np`` the same on the host.
+        dense: (n,) object index 0..m-1 per point on the device (int32).
         radii: (n,) radii on the device, m.
         ordered: whether ``dense`` ascends with the point index.
-        order: (n,) the points sorted by object (stable); starts: (m,) where each object starts in it.
+        num_objects: m.  max_radius_m: the largest radius, m.
     """
 
     object_ids: np.ndarray
     radii_m: np.ndarray
     dense: wp.array
-    dense_np: np.ndarray
     radii: wp.array
     ordered: bool
-    order: np.ndarray
-    starts: np.ndarray
+    num_objects: int
+    max_radius_m: float
 
     def matches(self, object_ids: np.ndarray, radii_m: np.ndarray) -> bool:
         return (
@@ -188,9 +275,35 @@ class _ObjectTable:
             and np.array_equal(self.radii_m, radii_m)
         )
 
-    def per_object(self, values: np.ndarray, reduce: np.ufunc) -> np.ndarray:
-        """``reduce`` (np.minimum or np.maximum) of per-point ``values`` (n, ...) over each object's points."""
-        return reduce.reduceat(values if self.ordered else values[self.order], self.starts, axis=0)
+
+@dataclass(frozen=True)
+class _Grid:
+    """The device arrays :func:`_grid_kernel` fills and :func:`_candidate_pairs_kernel` reads (see there), for n
+    points of m objects (a finder keeps one per (n, m) and reuses it every call)."""
+
+    box_lo: wp.array
+    box_hi: wp.array
+    reach: wp.array
+    close: wp.array
+    width: wp.array
+    dims: wp.array
+    first: wp.array
+    cell_start: wp.array
+    cursor: wp.array
+    point_cell: wp.array
+    cell_points: wp.array
+
+    @classmethod
+    def allocate(cls, num_points: int, num_objects: int, limit: int, device: str) -> _Grid:
+        def zeros(length: int, dtype) -> wp.array:
+            return wp.zeros(length, dtype=dtype, device=device)
+
+        return cls(
+            zeros(num_objects, wp.vec3d), zeros(num_objects, wp.vec3d), zeros(num_objects, wp.float64),
+            zeros(1, wp.int32), zeros(1, wp.float64), zeros(num_objects, wp.vec3i), zeros(num_objects, wp.int32),
+            zeros(limit + 1, wp.int32), zeros(limit + 1, wp.int32), zeros(num_points, wp.int32),
+            zeros(num_points, wp.int32),
+        )  # fmt: skip
 
 
 class PairFinder:
@@ -202,8 +315,10 @@ class PairFinder:
     margins plus the largest radius and margin of that object (not of all spheres). Cells are ``cell_fraction``
     of the largest query radius wide (wider where the grids would otherwise hold more than
     ``max_cells_per_point`` cells per sphere). Each object's grid holds only its own points, so no two places
-    share a cell; building it is a sort of the points by cell on the host. The object ids and radii are uploaded
-    again only when they change (a solver passes the same arrays every step)."""
+    share a cell. The boxes, the test whether any two objects are close enough to search at all, and the grids
+    (a counting sort of the points by cell) are built on the device in one launch (:func:`_grid_kernel`), the
+    search in a second: the host only uploads the points and margins and reads the pairs back. The object ids and
+    radii are uploaded again only when they change (a solver passes the same arrays every step)."""
 
     def __init__(self, device: str = "cpu", cell_fraction: float = 0.25, max_cells_per_point: float = 8.0) -> None:
         self.device = device
@@ -214,57 +329,87 @@ class PairFinder:
         self._count = wp.zeros(1, dtype=wp.int32, device=device)
         self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=device)
         self._objects: _ObjectTable | None = None
+        self._grid: tuple[tuple[int, int, int], _Grid] | None = None
+        # the two launches packed once and replayed while their arrays and scalars stay the same (packing a dozen
+        # arrays costs more than the grid kernel's work): (key, grid launch, search launch)
+        self._launches: tuple[tuple, wp.Launch, wp.Launch] | None = None
         # per input name: a device array kept between calls and, on CPU, the numpy view it is written through
         self._staged: dict[str, tuple[wp.array, np.ndarray | None]] = {}
         self.builds = 0  # grids built (calls whose objects were apart build none)
-
-    def build_cells(self, x: np.ndarray, objects: _ObjectTable, lo: np.ndarray, hi: np.ndarray,
-                    width_m: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-        """Each object's grid over its box ``lo``..``hi`` (m, 3) (m): cells ``width_m`` wide or wider (see the
-        class), numbered object by object, z varying fastest (a row of z cells is contiguous). Returns the cell
-        width (m), the grids' cell counts per axis (m, 3), each object's first cell (m,), each cell's first point in
-        the sorted order (``limit + 1``, the cells beyond the grids' own starting at n: one length for every call
-        with n points), and the points sorted by cell (n,)."""
-        self.builds += 1
-        obj = objects.dense_np
-        extent = hi - lo  # (m, 3) m
-        limit = int(max(64.0, self.max_cells_per_point * len(x)))
-        while True:
-            dims = np.floor(extent / width_m).astype(np.int64) + 1
-            cells = int(dims.prod(1).sum())
-            if cells <= limit:
-                break
-            width_m *= max(1.05, (cells / limit) ** (1.0 / 3.0))
-        first = np.zeros(len(dims) + 1, dtype=np.int64)
-        np.cumsum(dims.prod(1), out=first[1:])
-        d = dims[obj]  # (n, 3)
-        cell = np.minimum(np.floor((x - lo[obj]) / width_m).astype(np.int64), d - 1)
-        flat = first[obj] + (cell[:, 0] * d[:, 1] + cell[:, 1]) * d[:, 2] + cell[:, 2]
-        # (the order within a cell is free: the pairs come out sorted. 16-bit keys take numpy's radix sort)
-        order = np.argsort(flat.astype(np.uint16) if cells <= 65536 else flat, kind="stable")
-        start = np.zeros(limit + 1, dtype=np.int64)
-        np.cumsum(np.bincount(flat, minlength=limit), out=start[1:])
-        return width_m, dims, first[:-1], start, order
 
     def _object_table(self, object_ids: np.ndarray, radii_m: np.ndarray) -> _ObjectTable:
         if self._objects is not None and self._objects.matches(object_ids, radii_m):
             return self._objects
         _, dense = np.unique(object_ids, return_inverse=True)
         dense = dense.reshape(-1).astype(np.int32)
-        ordered = bool(np.all(dense[1:] >= dense[:-1]))
-        order = np.arange(len(dense)) if ordered else np.argsort(dense, kind="stable")
         radii = np.asarray(radii_m, dtype=np.float64)
         self._objects = _ObjectTable(
             np.array(object_ids, copy=True),
             radii.copy(),
             wp.array(dense, dtype=wp.int32, device=self.device),
-            dense.astype(np.int64),
             wp.array(radii, dtype=wp.float64, device=self.device),
-            ordered,
-            order,
-            np.flatnonzero(np.r_[True, np.diff(dense[order]) != 0]),
+            bool(np.all(dense[1:] >= dense[:-1])),
+            int(dense.max()) + 1 if len(dense) else 0,
+            float(radii.max()) if len(radii) else 0.0,
         )
         return self._objects
+
+    def _grid_of(self, num_points: int, objects: _ObjectTable) -> _Grid:
+        """The grid arrays for ``num_points`` points of ``objects`` (kept while n and m stay the same)."""
+        limit = int(max(64.0, self.max_cells_per_point * num_points))
+        key = (num_points, objects.num_objects, limit)
+        if self._grid is None or self._grid[0] != key:
+            self._grid = (key, _Grid.allocate(num_points, objects.num_objects, limit, self.device))
+        return self._grid[1]
+
+    def _bound_launches(self, points: wp.array, objects: _ObjectTable, margins: wp.array, width0: wp.array,
+                        margin_m: float) -> tuple[_Grid, wp.Launch, wp.Launch]:  # fmt: skip
+        """The grid and search launches over these staged arrays (``width0``: the initial cell width, m, on the
+        device), packed at first use and replayed while every array and scalar they were packed with is the same."""
+        n = points.shape[0]
+        g = self._grid_of(n, objects)
+        limit = g.cell_start.shape[0] - 1
+        key = (points, objects, margins, width0, g, self._pairs, self.capacity, float(margin_m))
+        if self._launches is None or len(self._launches[0]) != len(key) or any(
+            a is not b if isinstance(a, (wp.array, _ObjectTable, _Grid)) else a != b
+            for a, b in zip(self._launches[0], key)
+        ):
+            grid = wp.launch(
+                _grid_kernel, dim=1, device=self.device, record_cmd=True,
+                inputs=[points, objects.dense, objects.radii, margins, wp.float64(margin_m), width0, limit, self._count],
+                outputs=[g.box_lo, g.box_hi, g.reach, g.close, g.width, g.dims, g.first, g.cell_start, g.cursor,
+                         g.point_cell, g.cell_points],
+            )  # fmt: skip
+            search = wp.launch(
+                _candidate_pairs_kernel, dim=n, device=self.device, record_cmd=True,
+                inputs=[points, objects.dense, objects.radii, margins, g.box_lo, g.box_hi, g.reach, int(objects.ordered),
+                        wp.float64(margin_m), g.width, g.close, g.dims, g.first, g.cell_start, g.cell_points,
+                        self.capacity],
+                outputs=[self._count, self._pairs],
+            )  # fmt: skip
+            self._launches = (key, grid, search)
+        return g, self._launches[1], self._launches[2]
+
+    def build_cells(self, points_m: np.ndarray, object_ids: np.ndarray, radii_m: np.ndarray, margin_m: float,
+                    width_m: float, point_margins_m: np.ndarray | None = None) -> dict[str, np.ndarray | float | bool]:  # fmt: skip
+        """What :meth:`find` builds before its search, read back (for tests and inspection): ``close`` (whether any
+        two objects are close enough to search), the cell ``width`` (m, at least ``width_m``), each object's box
+        ``lo`` / ``hi`` (m, 3) and ``reach`` (m,), its grid's cell counts ``dims`` (m, 3) and first cell ``first``
+        (m,), each cell's first point ``cell_start`` and the points sorted by cell ``cell_points``."""
+        objects = self._object_table(object_ids, radii_m)
+        n = len(points_m)
+        extra = np.zeros(n) if point_margins_m is None else np.asarray(point_margins_m, dtype=np.float64)
+        g, grid, _ = self._bound_launches(self._stage("points", points_m, wp.vec3d), objects,
+                                          self._stage("margins", extra, wp.float64),
+                                          self._stage("width0", np.array([width_m]), wp.float64), margin_m)  # fmt: skip
+        grid.launch()
+        dims = g.dims.numpy()
+        cells = int(dims.prod(1).sum())
+        return {
+            "close": bool(g.close.numpy()[0]), "width": float(g.width.numpy()[0]), "lo": g.box_lo.numpy(),
+            "hi": g.box_hi.numpy(), "reach": g.reach.numpy(), "dims": dims, "first": g.first.numpy(),
+            "cell_start": g.cell_start.numpy()[: cells + 1], "cell_points": g.cell_points.numpy(),
+        }  # fmt: skip
 
     def find(
         self,
@@ -280,49 +425,30 @@ class PairFinder:
         The result is sorted lexicographically, so it is deterministic on every device.
         """
         n = points_m.shape[0]
-        if n == 0 or np.min(object_ids) == np.max(object_ids):  # fewer than two objects
+        if n == 0:
+            return np.zeros((0, 2), dtype=np.int64)
+        objects = self._object_table(object_ids, radii_m)
+        if objects.num_objects < 2:
             return np.zeros((0, 2), dtype=np.int64)
         extra = np.zeros(n) if point_margins_m is None else np.asarray(point_margins_m, dtype=np.float64)
-        query_radius = 2.0 * float(radii_m.max()) + margin_m + 2.0 * float(extra.max())
-        objects = self._object_table(object_ids, radii_m)
-        x = np.ascontiguousarray(points_m, dtype=np.float64)
-        lo_np, hi_np = objects.per_object(x, np.minimum), objects.per_object(x, np.maximum)  # bounding boxes
-        reach = objects.per_object(objects.radii_m + extra, np.maximum)  # (m,) largest radius + margin, m
-        if not _boxes_within_reach(lo_np, hi_np, reach, margin_m):  # objects apart (in flight): no search
-            return np.zeros((0, 2), dtype=np.int64)
-        pts = self._stage("points", x, wp.vec3d)
-        width_m, dims, first, start, order = self.build_cells(x, objects, lo_np, hi_np, self.cell_fraction * query_radius)
-        grid = [self._stage("grid_dims", dims, wp.vec3i), self._stage("grid_first", first, wp.int32),
-                self._stage("cell_start", start, wp.int32), self._stage("cell_points", order, wp.int32)]  # fmt: skip
-        lo, hi = self._stage("box_lo", lo_np, wp.vec3d), self._stage("box_hi", hi_np, wp.vec3d)
-        extra_wp, reach_wp = self._stage("margins", extra, wp.float64), self._stage("reach", reach, wp.float64)
-        while True:
-            self._count.zero_()
-            wp.launch(
-                _candidate_pairs_kernel,
-                dim=n,
-                inputs=[
-                    pts,
-                    objects.dense,
-                    objects.radii,
-                    extra_wp,
-                    lo,
-                    hi,
-                    reach_wp,
-                    int(objects.ordered),
-                    wp.float64(margin_m),
-                    wp.float64(width_m),
-                    *grid,
-                    self.capacity,
-                ],
-                outputs=[self._count, self._pairs],
-                device=self.device,
-            )
-            found = int(self._count.numpy()[0])
-            if found <= self.capacity:
-                break
+        query_radius = 2.0 * objects.max_radius_m + margin_m + 2.0 * float(extra.max())
+        pts = self._stage("points", points_m, wp.vec3d)
+        extra_wp = self._stage("margins", extra, wp.float64)
+        width0 = self._stage("width0", np.array([self.cell_fraction * query_radius]), wp.float64)
+        g, grid, search = self._bound_launches(pts, objects, extra_wp, width0, margin_m)
+        grid.launch()  # (clears the pair count)
+        search.launch()
+        found = int(self._count.numpy()[0])
+        while found > self.capacity:  # more pairs than the buffer holds: a larger one, the search again
             self.capacity = int(2 ** np.ceil(np.log2(found)))
             self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=self.device)
+            g, grid, search = self._bound_launches(pts, objects, extra_wp, width0, margin_m)
+            self._count.zero_()
+            search.launch()
+            found = int(self._count.numpy()[0])
+        self.builds += int(g.close.numpy()[0])
+        if not found:
+            return np.zeros((0, 2), dtype=np.int64)
         out = self._pairs.numpy()[:found].astype(np.int64)
         # lexicographic (i, j) order: i < j < n. The launch finds them in runs (on CPU the points' order: i ascending),
         # which the stable sort (a merge sort over runs) orders in half the time of the default one
@@ -330,10 +456,9 @@ class PairFinder:
         return np.stack(np.divmod(key, n), axis=1)
 
     def _stage(self, name: str, values: np.ndarray, dtype) -> wp.array:
-        """``values`` (n,) or (n, 3) in the finder's device array ``name`` of warp ``dtype`` (float64 or int32
-        scalars or 3-vectors), kept between calls and reallocated only when the length changes: a new warp array per
-        call costs more than the copy."""
-        np_dtype = np.int32 if dtype in (wp.int32, wp.vec3i) else np.float64
+        """``values`` (n,) or (n, 3) in the finder's device array ``name`` of warp ``dtype`` (float64 scalars or
+        3-vectors), kept between calls and reallocated only when the length changes: a new warp array per call
+        costs more than the copy."""
         values = np.asarray(values)
         length = values.shape[0]
         kept = self._staged.get(name)
@@ -344,7 +469,7 @@ class PairFinder:
         if host is not None:
             np.copyto(host, values)
         else:
-            array.assign(np.ascontiguousarray(values, dtype=np_dtype))
+            array.assign(np.ascontiguousarray(values, dtype=np.float64))
         return array
 
 

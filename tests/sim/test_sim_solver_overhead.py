@@ -93,13 +93,50 @@ def test_broad_phase_with_its_cells_widened_finds_exactly_the_close_pairs(cell_f
     assert len(expected) > 50
     for budget in (0.1, 8.0):
         finder = PairFinder(cell_fraction=cell_fraction, max_cells_per_point=budget)
-        width, dims, *_ = finder.build_cells(points, finder._object_table(ids, radii), *(
-            np.stack([f(points[ids == k], axis=0) for k in range(count)]) for f in (np.min, np.max)), 0.04)  # fmt: skip
+        grid = finder.build_cells(points, ids, radii, 0.004, 0.04)
+        width, dims = grid["width"], grid["dims"]
         assert dims.prod(1).sum() <= max(64, budget * len(points))
         assert (width > 0.04) == (budget < 1.0)  # only the small budget widens the 4 cm cells
         found = finder.find(points, ids, radii, 0.004)
         assert np.ptp(points[found[:, 0], 0]) > 2.5  # close pairs all along the row
         np.testing.assert_array_equal(found, expected)
+
+
+def test_broad_phase_grid_built_on_the_device_matches_its_definition():
+    """The grid kernel's boxes are each object's min / max point, its reaches the largest radius plus own margin,
+    its cell sort a permutation of the points in which every cell's run holds exactly the points whose
+    coordinates fall in that cell (floor of the offset from the box corner over the width, clamped to the grid),
+    and its closeness flag the boxes' gap test; three shuffled objects, then the same three moved apart."""
+    rng = np.random.default_rng(21)
+    ids = rng.permutation(np.repeat([4, 9, 2], [50, 70, 30]))
+    dense = np.searchsorted([2, 4, 9], ids)
+    centres = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, 0.0], [0.0, 0.1, 0.05]])
+    radii = rng.uniform(0.003, 0.01, len(ids))
+    margins = rng.uniform(0.0, 0.01, len(ids))
+    finder = PairFinder()
+    for spread, close in ((1.0, True), (20.0, False)):
+        points = spread * centres[dense] + rng.normal(scale=0.03, size=(len(ids), 3))
+        grid = finder.build_cells(points, ids, radii, 0.002, 0.04, margins)
+        lo = np.stack([points[dense == k].min(0) for k in range(3)])
+        hi = np.stack([points[dense == k].max(0) for k in range(3)])
+        np.testing.assert_array_equal(grid["lo"], lo)
+        np.testing.assert_array_equal(grid["hi"], hi)
+        np.testing.assert_array_equal(grid["reach"], [(radii + margins)[dense == k].max() for k in range(3)])
+        assert grid["close"] is close
+        if not close:
+            assert brute_force_pairs(points, ids, radii, 0.002, margins).shape == (0, 2)
+            continue
+        width, dims, first = grid["width"], grid["dims"], grid["first"]
+        assert width == 0.04 and np.array_equal(dims, np.floor((hi - lo) / width).astype(int) + 1)
+        np.testing.assert_array_equal(first, np.r_[0, np.cumsum(dims.prod(1))[:-1]])
+        assert np.array_equal(np.sort(grid["cell_points"]), np.arange(len(ids)))
+        cell = np.minimum(np.floor((points - lo[dense]) / width).astype(int), dims[dense] - 1)
+        flat = first[dense] + (cell[:, 0] * dims[dense, 1] + cell[:, 1]) * dims[dense, 2] + cell[:, 2]
+        start = grid["cell_start"]
+        assert start[0] == 0 and start[-1] == len(ids) and np.all(np.diff(start) >= 0)
+        for c in range(len(start) - 1):
+            run = grid["cell_points"][start[c]:start[c + 1]]
+            assert np.array_equal(np.sort(run), np.flatnonzero(flat == c))
 
 
 def test_broad_phase_of_one_object_is_empty():
