@@ -1235,8 +1235,7 @@ class ImplicitEulerSolver:
             return
         oi, oj = obj_i[rows], obj_j[rows]
         n = len(self.bodies)
-        keys, group = np.unique(oi * n + oj, return_inverse=True)  # object pairs (a, c), sorted
-        group = group.reshape(-1)
+        keys, group = _distinct_codes(oi * n + oj, n * n)  # object pairs (a, c), sorted
         obj_a, obj_c = keys // n, keys % n
         fa, m = f_i.numpy()[rows], mag[rows]
 
