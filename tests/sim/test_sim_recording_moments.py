@@ -279,8 +279,9 @@ def test_single_matrix_helpers_match_the_batched_functions():
 
 def test_one_handle_groups_record_what_the_per_object_frames_record():
     """``FrameRecorder`` takes the frames of one-handle objects batched per (cubature points, spheres) group
-    (``OneHandleGroup``): every recorded array of every object equals, bit for bit, what the per-object path
-    (``_object_frame``, the recorder without groups) records, with and without sphere forces, for two groups
+    (``OneHandleGroup``): every recorded array of every object equals, bit for bit, what the recorder without
+    groups records (``_object_frames``, itself ``_object_frame`` object by object: the next test), with and without
+    sphere forces, for two groups
     of one-handle objects (40 and 30 cubature points) beside a 3-handle object that is in no group."""
     objs = [_object(1, 21, None), _object(3, 22, None), _object(1, 23, 15), _object(1, 24, None)]
     small = _object(1, 25, None)[0]
