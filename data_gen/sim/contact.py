@@ -19,6 +19,7 @@ wrappers return totals.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,6 +153,61 @@ def _candidate_pairs_kernel(
                                 pairs[slot, 1] = j
 
 
+@wp.func
+def _grid_layout(margin: wp.float64, width0: wp.float64, limit: int, box_lo: wp.array(dtype=wp.vec3d),
+                 box_hi: wp.array(dtype=wp.vec3d), object_reach: wp.array(dtype=wp.float64),
+                 close: wp.array(dtype=wp.int32), grid_width: wp.array(dtype=wp.float64),
+                 grid_dims: wp.array(dtype=wp.vec3i), grid_first: wp.array(dtype=wp.int32)):  # fmt: skip
+    """From the objects' boxes and reaches: ``close[0]`` = whether some two objects' boxes are closer on every axis
+    than their reaches plus ``margin`` (a pair of points passing the search's test needs it; a relative 1e-9 covers
+    round-off); if so, each object's grid over its box, cells ``width0`` wide, widened (by at least 5 % a time)
+    until all grids hold at most ``limit`` cells (``grid_width[0]``), numbered object by object. Returns the cell
+    count (0 when apart)."""
+    m = box_lo.shape[0]
+    near = int(0)
+    for a in range(m):
+        for c in range(a + 1, m):
+            gap = wp.max(box_lo[c] - box_hi[a], box_lo[a] - box_hi[c])  # per axis, m
+            limit_ac = (object_reach[a] + object_reach[c] + margin) * wp.float64(1.000000001)
+            if wp.max(wp.max(gap[0], gap[1]), gap[2]) < limit_ac:
+                near = 1
+    close[0] = near
+    if near == 0:
+        return int(0)
+    width = width0
+    cells = wp.float64(0.0)
+    while True:  # the cell counts in float64 (a tiny width cannot overflow them)
+        cells = wp.float64(0.0)
+        for c in range(m):
+            e = box_hi[c] - box_lo[c]
+            cells += (wp.floor(e[0] / width) + wp.float64(1.0)) * (wp.floor(e[1] / width) + wp.float64(1.0)) * (
+                wp.floor(e[2] / width) + wp.float64(1.0))  # fmt: skip
+        if cells <= wp.float64(limit):
+            break
+        width = width * wp.max(wp.float64(1.05), wp.pow(cells / wp.float64(limit), wp.float64(1.0) / wp.float64(3.0)))
+    grid_width[0] = width
+    total = int(0)
+    for c in range(m):
+        e = box_hi[c] - box_lo[c]
+        dims = wp.vec3i(int(wp.floor(e[0] / width)) + 1, int(wp.floor(e[1] / width)) + 1, int(wp.floor(e[2] / width)) + 1)
+        grid_dims[c] = dims
+        grid_first[c] = total
+        total += dims[0] * dims[1] * dims[2]
+    return total
+
+
+@wp.func
+def _point_cell(p: wp.vec3d, c: int, width: wp.float64, box_lo: wp.array(dtype=wp.vec3d),
+                grid_dims: wp.array(dtype=wp.vec3i), grid_first: wp.array(dtype=wp.int32)):  # fmt: skip
+    """The cell of a point ``p`` (m) of object ``c`` in the grids of :func:`_grid_layout` (z varying fastest)."""
+    dims = grid_dims[c]
+    lo = box_lo[c]
+    x = _cell_of(p[0] - lo[0], width, dims[0])
+    y = _cell_of(p[1] - lo[1], width, dims[1])
+    z = _cell_of(p[2] - lo[2], width, dims[2])
+    return grid_first[c] + (x * dims[1] + y) * dims[2] + z
+
+
 @wp.kernel
 def _grid_kernel(
     points: wp.array(dtype=wp.vec3d),
@@ -174,16 +230,13 @@ def _grid_kernel(
     point_cell: wp.array(dtype=wp.int32),
     cell_points: wp.array(dtype=wp.int32),
 ):
-    """One thread: what :func:`_candidate_pairs_kernel` searches, from the points (m objects, ``object_ids``
-    0..m-1). Each object's bounding box of its points and its reach (largest radius plus own margin); ``close[0]``
-    = whether some two objects' boxes are closer on every axis than their reaches plus ``margin`` (a pair of points
-    passing the search's test needs it; a relative 1e-9 covers round-off), else nothing more is built. Then each
-    object's grid over its box: cells ``width0`` wide, widened (by at least 5 % a time) until all grids hold at most
-    ``limit`` cells (``grid_width[0]``), numbered object by object with z varying fastest; ``cell_start[c]`` the
-    first of cell c's points in ``cell_points`` (a counting sort of the points by cell; ``cursor``, ``point_cell``
+    """One thread (the CPU's path): what :func:`_candidate_pairs_kernel` searches, from the points (m objects,
+    ``object_ids`` 0..m-1). Each object's bounding box of its points and its reach (largest radius plus own
+    margin), then :func:`_grid_layout` (nothing more when every two objects are apart), then ``cell_start[c]``, the
+    first of cell c's points in ``cell_points``: a counting sort of the points by cell (``cursor``, ``point_cell``
     scratch). A serial loop over the points: the host's array calls it replaces cost more than the arithmetic.
     ``width0[0]`` is read from the device (the launch is packed once and replayed); ``pair_count[0]`` is cleared for
-    the search that follows."""
+    the search that follows. :class:`PairFinder` runs the same steps as parallel launches on other devices."""
     pair_count[0] = 0
     n = points.shape[0]
     m = box_lo.shape[0]
@@ -197,46 +250,15 @@ def _grid_kernel(
         box_lo[c] = wp.min(box_lo[c], points[i])
         box_hi[c] = wp.max(box_hi[c], points[i])
         object_reach[c] = wp.max(object_reach[c], radii[i] + point_margins[i])
-    near = int(0)
-    for a in range(m):
-        for c in range(a + 1, m):
-            gap = wp.max(box_lo[c] - box_hi[a], box_lo[a] - box_hi[c])  # per axis, m
-            limit_ac = (object_reach[a] + object_reach[c] + margin) * wp.float64(1.000000001)
-            if wp.max(wp.max(gap[0], gap[1]), gap[2]) < limit_ac:
-                near = 1
-    close[0] = near
-    if near == 0:
+    total = _grid_layout(margin, width0[0], limit, box_lo, box_hi, object_reach, close, grid_width, grid_dims,
+                         grid_first)  # fmt: skip
+    if close[0] == 0:
         return
-    width = width0[0]
-    cells = wp.float64(0.0)
-    while True:  # the cell counts in float64 (a tiny width cannot overflow them)
-        cells = wp.float64(0.0)
-        for c in range(m):
-            e = box_hi[c] - box_lo[c]
-            cells += (wp.floor(e[0] / width) + wp.float64(1.0)) * (wp.floor(e[1] / width) + wp.float64(1.0)) * (
-                wp.floor(e[2] / width) + wp.float64(1.0))  # fmt: skip
-        if cells <= wp.float64(limit):
-            break
-        width = width * wp.max(wp.float64(1.05), wp.pow(cells / wp.float64(limit), wp.float64(1.0) / wp.float64(3.0)))
-    grid_width[0] = width
-    total = int(0)
-    for c in range(m):
-        e = box_hi[c] - box_lo[c]
-        dims = wp.vec3i(int(wp.floor(e[0] / width)) + 1, int(wp.floor(e[1] / width)) + 1, int(wp.floor(e[2] / width)) + 1)
-        grid_dims[c] = dims
-        grid_first[c] = total
-        total += dims[0] * dims[1] * dims[2]
+    width = grid_width[0]
     for k in range(total + 1):
         cell_start[k] = 0
     for i in range(n):
-        c = object_ids[i]
-        dims = grid_dims[c]
-        lo = box_lo[c]
-        p = points[i]
-        x = _cell_of(p[0] - lo[0], width, dims[0])
-        y = _cell_of(p[1] - lo[1], width, dims[1])
-        z = _cell_of(p[2] - lo[2], width, dims[2])
-        cell = grid_first[c] + (x * dims[1] + y) * dims[2] + z
+        cell = _point_cell(points[i], object_ids[i], width, box_lo, grid_dims, grid_first)
         point_cell[i] = cell
         cell_start[cell + 1] += 1
     for k in range(total):
@@ -246,6 +268,65 @@ def _grid_kernel(
         cell = point_cell[i]
         cell_points[cursor[cell]] = i
         cursor[cell] += 1
+
+
+# the same grid as parallel launches (devices other than the CPU, where one thread's loops would be slow): boxes by
+# atomic min / max, the layout in one thread, a count per cell by atomic adds, a scan, a scatter by atomic adds (the
+# order within a cell is free: the search's pairs come out sorted)
+@wp.kernel
+def _grid_reset_kernel(pair_count: wp.array(dtype=wp.int32), box_lo: wp.array(dtype=wp.vec3d),
+                       box_hi: wp.array(dtype=wp.vec3d), object_reach: wp.array(dtype=wp.float64)):  # fmt: skip
+    c = wp.tid()
+    if c == 0:
+        pair_count[0] = 0
+    huge = wp.float64(1.0e300)
+    box_lo[c] = wp.vec3d(huge, huge, huge)
+    box_hi[c] = wp.vec3d(-huge, -huge, -huge)
+    object_reach[c] = -huge
+
+
+@wp.kernel
+def _grid_boxes_kernel(points: wp.array(dtype=wp.vec3d), object_ids: wp.array(dtype=wp.int32),
+                       radii: wp.array(dtype=wp.float64), point_margins: wp.array(dtype=wp.float64),
+                       box_lo: wp.array(dtype=wp.vec3d), box_hi: wp.array(dtype=wp.vec3d),
+                       object_reach: wp.array(dtype=wp.float64)):  # fmt: skip
+    i = wp.tid()
+    c = object_ids[i]
+    wp.atomic_min(box_lo, c, points[i])
+    wp.atomic_max(box_hi, c, points[i])
+    wp.atomic_max(object_reach, c, radii[i] + point_margins[i])
+
+
+@wp.kernel
+def _grid_layout_kernel(margin: wp.float64, width0: wp.array(dtype=wp.float64), limit: int,
+                        box_lo: wp.array(dtype=wp.vec3d), box_hi: wp.array(dtype=wp.vec3d),
+                        object_reach: wp.array(dtype=wp.float64), close: wp.array(dtype=wp.int32),
+                        grid_width: wp.array(dtype=wp.float64), grid_dims: wp.array(dtype=wp.vec3i),
+                        grid_first: wp.array(dtype=wp.int32)):  # fmt: skip
+    _grid_layout(margin, width0[0], limit, box_lo, box_hi, object_reach, close, grid_width, grid_dims, grid_first)
+
+
+@wp.kernel
+def _grid_count_kernel(points: wp.array(dtype=wp.vec3d), object_ids: wp.array(dtype=wp.int32),
+                       close: wp.array(dtype=wp.int32), grid_width: wp.array(dtype=wp.float64),
+                       box_lo: wp.array(dtype=wp.vec3d), grid_dims: wp.array(dtype=wp.vec3i),
+                       grid_first: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32),
+                       point_cell: wp.array(dtype=wp.int32)):  # fmt: skip
+    if close[0] == 0:
+        return
+    i = wp.tid()
+    cell = _point_cell(points[i], object_ids[i], grid_width[0], box_lo, grid_dims, grid_first)
+    point_cell[i] = cell
+    wp.atomic_add(counts, cell, 1)
+
+
+@wp.kernel
+def _grid_scatter_kernel(close: wp.array(dtype=wp.int32), point_cell: wp.array(dtype=wp.int32),
+                         cursor: wp.array(dtype=wp.int32), cell_points: wp.array(dtype=wp.int32)):  # fmt: skip
+    if close[0] == 0:
+        return
+    i = wp.tid()
+    cell_points[wp.atomic_add(cursor, point_cell[i], 1)] = i
 
 
 @dataclass(frozen=True)
@@ -316,23 +397,27 @@ class PairFinder:
     of the largest query radius wide (wider where the grids would otherwise hold more than
     ``max_cells_per_point`` cells per sphere). Each object's grid holds only its own points, so no two places
     share a cell. The boxes, the test whether any two objects are close enough to search at all, and the grids
-    (a counting sort of the points by cell) are built on the device in one launch (:func:`_grid_kernel`), the
-    search in a second: the host only uploads the points and margins and reads the pairs back. The object ids and
-    radii are uploaded again only when they change (a solver passes the same arrays every step)."""
+    (a counting sort of the points by cell) are built on the device, on the CPU in one single-thread launch
+    (:func:`_grid_kernel`), elsewhere (``parallel_grid``, the default off the CPU) in parallel launches with atomics
+    and a scan; the search is one more launch: the host only uploads the points and margins and reads the pairs
+    back. The object ids and radii are uploaded again only when they change (a solver passes the same arrays every
+    step)."""
 
-    def __init__(self, device: str = "cpu", cell_fraction: float = 0.25, max_cells_per_point: float = 8.0) -> None:
+    def __init__(self, device: str = "cpu", cell_fraction: float = 0.25, max_cells_per_point: float = 8.0,
+                 parallel_grid: bool | None = None) -> None:  # fmt: skip
         self.device = device
         self.cell_fraction = float(cell_fraction)
         self.max_cells_per_point = float(max_cells_per_point)
+        self.parallel_grid = (str(device) != "cpu") if parallel_grid is None else bool(parallel_grid)
         wp.init()
         self.capacity = 1024
         self._count = wp.zeros(1, dtype=wp.int32, device=device)
         self._pairs = wp.zeros((self.capacity, 2), dtype=wp.int32, device=device)
         self._objects: _ObjectTable | None = None
         self._grid: tuple[tuple[int, int, int], _Grid] | None = None
-        # the two launches packed once and replayed while their arrays and scalars stay the same (packing a dozen
-        # arrays costs more than the grid kernel's work): (key, grid launch, search launch)
-        self._launches: tuple[tuple, wp.Launch, wp.Launch] | None = None
+        # the launches packed once and replayed while their arrays and scalars stay the same (packing a dozen arrays
+        # costs more than the grid kernel's work): (key, the grid's build, the search launch)
+        self._launches: tuple[tuple, Callable[[], None], wp.Launch] | None = None
         # per input name: a device array kept between calls and, on CPU, the numpy view it is written through
         self._staged: dict[str, tuple[wp.array, np.ndarray | None]] = {}
         self.builds = 0  # grids built (calls whose objects were apart build none)
@@ -363,9 +448,10 @@ class PairFinder:
         return self._grid[1]
 
     def _bound_launches(self, points: wp.array, objects: _ObjectTable, margins: wp.array, width0: wp.array,
-                        margin_m: float) -> tuple[_Grid, wp.Launch, wp.Launch]:  # fmt: skip
-        """The grid and search launches over these staged arrays (``width0``: the initial cell width, m, on the
-        device), packed at first use and replayed while every array and scalar they were packed with is the same."""
+                        margin_m: float) -> tuple[_Grid, Callable[[], None], wp.Launch]:  # fmt: skip
+        """The grid's build (a call that also clears the pair count) and the search launch over these staged arrays
+        (``width0``: the initial cell width, m, on the device), packed at first use and replayed while every array and
+        scalar they were packed with is the same."""
         n = points.shape[0]
         g = self._grid_of(n, objects)
         limit = g.cell_start.shape[0] - 1
@@ -374,12 +460,16 @@ class PairFinder:
             a is not b if isinstance(a, (wp.array, _ObjectTable, _Grid)) else a != b
             for a, b in zip(self._launches[0], key)
         ):
-            grid = wp.launch(
-                _grid_kernel, dim=1, device=self.device, record_cmd=True,
-                inputs=[points, objects.dense, objects.radii, margins, wp.float64(margin_m), width0, limit, self._count],
-                outputs=[g.box_lo, g.box_hi, g.reach, g.close, g.width, g.dims, g.first, g.cell_start, g.cursor,
-                         g.point_cell, g.cell_points],
-            )  # fmt: skip
+            if self.parallel_grid:
+                build = self._parallel_build(points, objects, margins, width0, margin_m, g, limit)
+            else:
+                build = wp.launch(
+                    _grid_kernel, dim=1, device=self.device, record_cmd=True,
+                    inputs=[points, objects.dense, objects.radii, margins, wp.float64(margin_m), width0, limit,
+                            self._count],
+                    outputs=[g.box_lo, g.box_hi, g.reach, g.close, g.width, g.dims, g.first, g.cell_start, g.cursor,
+                             g.point_cell, g.cell_points],
+                ).launch  # fmt: skip
             search = wp.launch(
                 _candidate_pairs_kernel, dim=n, device=self.device, record_cmd=True,
                 inputs=[points, objects.dense, objects.radii, margins, g.box_lo, g.box_hi, g.reach, int(objects.ordered),
@@ -387,8 +477,38 @@ class PairFinder:
                         self.capacity],
                 outputs=[self._count, self._pairs],
             )  # fmt: skip
-            self._launches = (key, grid, search)
+            self._launches = (key, build, search)
         return g, self._launches[1], self._launches[2]
+
+    def _parallel_build(self, points: wp.array, objects: _ObjectTable, margins: wp.array, width0: wp.array,
+                        margin_m: float, g: _Grid, limit: int) -> Callable[[], None]:  # fmt: skip
+        """:func:`_grid_kernel`'s work as parallel launches (packed once): reset, boxes by atomic min / max, the
+        layout in one thread, cell counts by atomic adds, an exclusive scan into ``cell_start``, a scatter."""
+        n, m, device = points.shape[0], objects.num_objects, self.device
+        reset = wp.launch(_grid_reset_kernel, dim=m, device=device, record_cmd=True,
+                          inputs=[self._count, g.box_lo, g.box_hi, g.reach])  # fmt: skip
+        boxes = wp.launch(_grid_boxes_kernel, dim=n, device=device, record_cmd=True,
+                          inputs=[points, objects.dense, objects.radii, margins, g.box_lo, g.box_hi, g.reach])  # fmt: skip
+        layout = wp.launch(_grid_layout_kernel, dim=1, device=device, record_cmd=True,
+                           inputs=[wp.float64(margin_m), width0, limit, g.box_lo, g.box_hi, g.reach, g.close, g.width,
+                                   g.dims, g.first])  # fmt: skip
+        count = wp.launch(_grid_count_kernel, dim=n, device=device, record_cmd=True,
+                          inputs=[points, objects.dense, g.close, g.width, g.box_lo, g.dims, g.first, g.cursor,
+                                  g.point_cell])  # fmt: skip
+        scatter = wp.launch(_grid_scatter_kernel, dim=n, device=device, record_cmd=True,
+                            inputs=[g.close, g.point_cell, g.cursor, g.cell_points])  # fmt: skip
+
+        def build() -> None:
+            reset.launch()
+            boxes.launch()
+            layout.launch()
+            g.cursor.zero_()  # the counts per cell
+            count.launch()
+            wp.utils.array_scan(g.cursor, g.cell_start, inclusive=False)
+            wp.copy(g.cursor, g.cell_start)  # each cell's next free slot
+            scatter.launch()
+
+        return build
 
     def build_cells(self, points_m: np.ndarray, object_ids: np.ndarray, radii_m: np.ndarray, margin_m: float,
                     width_m: float, point_margins_m: np.ndarray | None = None) -> dict[str, np.ndarray | float | bool]:  # fmt: skip
@@ -402,7 +522,7 @@ class PairFinder:
         g, grid, _ = self._bound_launches(self._stage("points", points_m, wp.vec3d), objects,
                                           self._stage("margins", extra, wp.float64),
                                           self._stage("width0", np.array([width_m]), wp.float64), margin_m)  # fmt: skip
-        grid.launch()
+        grid()
         dims = g.dims.numpy()
         cells = int(dims.prod(1).sum())
         return {
@@ -436,7 +556,7 @@ class PairFinder:
         extra_wp = self._stage("margins", extra, wp.float64)
         width0 = self._stage("width0", np.array([self.cell_fraction * query_radius]), wp.float64)
         g, grid, search = self._bound_launches(pts, objects, extra_wp, width0, margin_m)
-        grid.launch()  # (clears the pair count)
+        grid()  # (clears the pair count)
         search.launch()
         found = int(self._count.numpy()[0])
         while found > self.capacity:  # more pairs than the buffer holds: a larger one, the search again

@@ -27,10 +27,13 @@ def brute_force_pairs(points, object_ids, radii, margin, point_margins):
     return out[np.lexsort((out[:, 1], out[:, 0]))]
 
 
+@pytest.mark.parametrize("parallel_grid", [False, True])
 @pytest.mark.parametrize("ids_kind", ["ascending", "shuffled", "sparse"])
-def test_grouped_broad_phase_finds_exactly_the_close_pairs(ids_kind):
+def test_grouped_broad_phase_finds_exactly_the_close_pairs(ids_kind, parallel_grid):
+    """The pairs equal the brute-force ones, with the grid built by the CPU's single thread or by the parallel
+    launches other devices take (run here on the CPU)."""
     rng = np.random.default_rng(3)
-    finder = PairFinder()
+    finder = PairFinder(parallel_grid=parallel_grid)
     for trial in range(6):
         sizes = rng.integers(0, 120, rng.integers(2, 8))
         ids = np.concatenate([np.full(s, k) for k, s in enumerate(sizes)])
@@ -53,7 +56,8 @@ def test_grouped_broad_phase_finds_exactly_the_close_pairs(ids_kind):
         )
 
 
-def test_broad_phase_of_objects_apart_skips_the_search_and_finds_exactly_the_close_pairs():
+@pytest.mark.parametrize("parallel_grid", [False, True])
+def test_broad_phase_of_objects_apart_skips_the_search_and_finds_exactly_the_close_pairs(parallel_grid):
     """Objects whose bounding boxes are farther apart than their reach find nothing without a hash-grid search;
     moved together step by step (across the reach), the pairs equal the brute-force ones at every distance."""
     rng = np.random.default_rng(5)
@@ -62,7 +66,7 @@ def test_broad_phase_of_objects_apart_skips_the_search_and_finds_exactly_the_clo
     ids = np.r_[np.zeros(60, dtype=int), np.ones(50, dtype=int)]
     radii = rng.uniform(0.002, 0.01, 110)
     margins = rng.uniform(0.0, 0.02, 110)
-    finder = PairFinder()
+    finder = PairFinder(parallel_grid=parallel_grid)
     builds = finder.builds
     found_any = []
     for offset in np.linspace(0.4, 0.05, 36):
@@ -102,7 +106,8 @@ def test_broad_phase_with_its_cells_widened_finds_exactly_the_close_pairs(cell_f
         np.testing.assert_array_equal(found, expected)
 
 
-def test_broad_phase_grid_built_on_the_device_matches_its_definition():
+@pytest.mark.parametrize("parallel_grid", [False, True])
+def test_broad_phase_grid_built_on_the_device_matches_its_definition(parallel_grid):
     """The grid kernel's boxes are each object's min / max point, its reaches the largest radius plus own margin,
     its cell sort a permutation of the points in which every cell's run holds exactly the points whose
     coordinates fall in that cell (floor of the offset from the box corner over the width, clamped to the grid),
@@ -113,7 +118,7 @@ def test_broad_phase_grid_built_on_the_device_matches_its_definition():
     centres = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, 0.0], [0.0, 0.1, 0.05]])
     radii = rng.uniform(0.003, 0.01, len(ids))
     margins = rng.uniform(0.0, 0.01, len(ids))
-    finder = PairFinder()
+    finder = PairFinder(parallel_grid=parallel_grid)
     for spread, close in ((1.0, True), (20.0, False)):
         points = spread * centres[dense] + rng.normal(scale=0.03, size=(len(ids), 3))
         grid = finder.build_cells(points, ids, radii, 0.002, 0.04, margins)
