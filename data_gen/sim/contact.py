@@ -329,6 +329,20 @@ def _grid_scatter_kernel(close: wp.array(dtype=wp.int32), point_cell: wp.array(d
     cell_points[wp.atomic_add(cursor, point_cell[i], 1)] = i
 
 
+class NonFiniteInput(ValueError):
+    """:meth:`PairFinder.find` was given a non-finite sphere centre or margin (the message names which)."""
+
+
+def _check_finite(points_m: np.ndarray, margins_m: np.ndarray) -> None:
+    """Refuse non-finite sphere centres or margins (:class:`NonFiniteInput`): the device grid turns coordinates
+    into cell indices, where a NaN would index outside its arrays."""
+    for name, values in (("points_m", points_m), ("point_margins_m", margins_m)):
+        finite = np.isfinite(values)
+        if not finite.all():
+            row = int(np.argwhere(~finite)[0][0])
+            raise NonFiniteInput(f"PairFinder.find: {name}[{row}] = {np.asarray(values)[row].tolist()} is not finite")
+
+
 @dataclass(frozen=True)
 class _ObjectTable:
     """What :class:`PairFinder` derives from the object ids and radii (reused while they stay the same).
@@ -519,6 +533,7 @@ class PairFinder:
         objects = self._object_table(object_ids, radii_m)
         n = len(points_m)
         extra = np.zeros(n) if point_margins_m is None else np.asarray(point_margins_m, dtype=np.float64)
+        _check_finite(points_m, extra)
         g, grid, _ = self._bound_launches(self._stage("points", points_m, wp.vec3d), objects,
                                           self._stage("margins", extra, wp.float64),
                                           self._stage("width0", np.array([width_m]), wp.float64), margin_m)  # fmt: skip
@@ -551,6 +566,7 @@ class PairFinder:
         if objects.num_objects < 2:
             return np.zeros((0, 2), dtype=np.int64)
         extra = np.zeros(n) if point_margins_m is None else np.asarray(point_margins_m, dtype=np.float64)
+        _check_finite(points_m, extra)
         query_radius = 2.0 * objects.max_radius_m + margin_m + 2.0 * float(extra.max())
         pts = self._stage("points", points_m, wp.vec3d)
         extra_wp = self._stage("margins", extra, wp.float64)

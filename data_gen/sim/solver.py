@@ -57,7 +57,7 @@ from functools import partial
 import numpy as np
 import torch
 
-from data_gen.sim.contact import pair_contact, pair_depth
+from data_gen.sim.contact import NonFiniteInput, pair_contact, pair_depth
 from data_gen.sim.contact_points import ContactPoints, CubatureGather
 from data_gen.sim.contacts import BroadPhase, Contacts
 from data_gen.sim.energy import point_terms
@@ -607,7 +607,10 @@ class ImplicitEulerSolver:
         if cached is not None and _same_state_key(cached[0], key):
             return cached[1]
         t0 = time.perf_counter()
-        pairs = self.broad_phase.candidates(positions, self._sphere_velocity_list(), self.dt)
+        try:
+            pairs = self.broad_phase.candidates(positions, self._sphere_velocity_list(), self.dt)
+        except NonFiniteInput as e:  # (the states are checked after every solve: a guard, not a path)
+            raise SimulationError(f"step {self.step_index}: broad phase: {e}") from None
         self.timings["broad_phase"] += time.perf_counter() - t0
         self._candidate_cache = (key, pairs)
         return pairs

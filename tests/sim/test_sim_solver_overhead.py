@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from data_gen.sim.contact import PairFinder
+from data_gen.sim.contact import NonFiniteInput, PairFinder
 from data_gen.sim.presets import load_preset
-from data_gen.sim.solver import NO_PARTNER, ImplicitEulerSolver, SimBody, StepStats
+from data_gen.sim.solver import NO_PARTNER, ImplicitEulerSolver, SimBody, SimulationError, StepStats
 from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
 from tests.sim.test_sim_batched_terms import _object
@@ -142,6 +142,39 @@ def test_broad_phase_grid_built_on_the_device_matches_its_definition(parallel_gr
         for c in range(len(start) - 1):
             run = grid["cell_points"][start[c]:start[c + 1]]
             assert np.array_equal(np.sort(run), np.flatnonzero(flat == c))
+
+
+def test_broad_phase_refuses_non_finite_points_and_margins_by_name():
+    """A NaN centre or an infinite margin is refused with the argument and row named (the device grid would turn it
+    into a cell index outside its arrays)."""
+    rng = np.random.default_rng(2)
+    points = rng.normal(scale=0.05, size=(40, 3))
+    ids = np.repeat([0, 1], 20)
+    radii = np.full(40, 0.01)
+    finder = PairFinder()
+    assert len(finder.find(points, ids, radii, 0.01)) > 0
+    bad = points.copy()
+    bad[7, 1] = np.nan
+    with pytest.raises(ValueError, match=r"points_m\[7\] .* not finite"):
+        finder.find(bad, ids, radii, 0.01)
+    margins = np.zeros(40)
+    margins[12] = np.inf
+    with pytest.raises(ValueError, match=r"point_margins_m\[12\] = inf is not finite"):
+        finder.find(points, ids, radii, 0.01, margins)
+    with pytest.raises(NonFiniteInput, match=r"points_m\[7\]"):
+        finder.build_cells(bad, ids, radii, 0.01, 0.04)
+    assert issubclass(NonFiniteInput, ValueError)
+
+
+def test_a_non_finite_state_reaching_the_broad_phase_is_a_simulation_error():
+    """A NaN in an object's state that reaches the pair search (the solver checks its states after every solve, so
+    this is a guard) is a ``SimulationError`` naming the step and the sphere, which a generation run turns into a
+    rejected sequence, not a crash."""
+    solver = _solver()
+    solver.state.q[2] = solver.state.q[2].clone()
+    solver.state.q[2][5] = float("nan")
+    with pytest.raises(SimulationError, match=r"step 0: broad phase: PairFinder.find: points_m\[\d+\] .* not finite"):
+        solver.step()
 
 
 def test_broad_phase_of_one_object_is_empty():
