@@ -154,6 +154,16 @@ def _candidate_pairs_kernel(
 
 
 @wp.func
+def _empty_box(c: int, box_lo: wp.array(dtype=wp.vec3d), box_hi: wp.array(dtype=wp.vec3d),
+               object_reach: wp.array(dtype=wp.float64)):  # fmt: skip
+    """Object ``c``'s box and reach before any of its points is added (every min / max then takes the point's)."""
+    huge = wp.float64(1.0e300)
+    box_lo[c] = wp.vec3d(huge, huge, huge)
+    box_hi[c] = wp.vec3d(-huge, -huge, -huge)
+    object_reach[c] = -huge
+
+
+@wp.func
 def _grid_layout(margin: wp.float64, width0: wp.float64, limit: int, box_lo: wp.array(dtype=wp.vec3d),
                  box_hi: wp.array(dtype=wp.vec3d), object_reach: wp.array(dtype=wp.float64),
                  close: wp.array(dtype=wp.int32), grid_width: wp.array(dtype=wp.float64),
@@ -239,12 +249,8 @@ def _grid_kernel(
     the search that follows. :class:`PairFinder` runs the same steps as parallel launches on other devices."""
     pair_count[0] = 0
     n = points.shape[0]
-    m = box_lo.shape[0]
-    huge = wp.float64(1.0e300)
-    for c in range(m):
-        box_lo[c] = wp.vec3d(huge, huge, huge)
-        box_hi[c] = wp.vec3d(-huge, -huge, -huge)
-        object_reach[c] = -huge
+    for c in range(box_lo.shape[0]):
+        _empty_box(c, box_lo, box_hi, object_reach)
     for i in range(n):
         c = object_ids[i]
         box_lo[c] = wp.min(box_lo[c], points[i])
@@ -279,10 +285,7 @@ def _grid_reset_kernel(pair_count: wp.array(dtype=wp.int32), box_lo: wp.array(dt
     c = wp.tid()
     if c == 0:
         pair_count[0] = 0
-    huge = wp.float64(1.0e300)
-    box_lo[c] = wp.vec3d(huge, huge, huge)
-    box_hi[c] = wp.vec3d(-huge, -huge, -huge)
-    object_reach[c] = -huge
+    _empty_box(c, box_lo, box_hi, object_reach)
 
 
 @wp.kernel

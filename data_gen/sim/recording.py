@@ -570,12 +570,14 @@ def _object_frames(
     asleep: list[bool],
     sphere_forces: list[torch.Tensor] | None,
 ) -> tuple[list[dict], list[RigidFrame]]:
-    """:func:`_object_frame` of several objects, bit for bit: each object's positions and deformation gradients
-    as there, but the rigid-body sums of objects with the same basis width in one :func:`rigid_frames` call and
-    the hydrostatic stresses from their deformation gradients in one call over all their points (the same
-    elementwise formulas; a frame of five soft objects took five of each)."""
+    """The frame records of several objects (but their orientations and angular velocities, None here) and their
+    rigid-body moments: each object's positions and deformation gradients (a one-handle object with ``C = [I; 0]``
+    has one F, its determinant repeated); the rigid-body sums of objects with the same basis width in one
+    :func:`rigid_frames` call; the hydrostatic stresses from the deformation gradients in one call over all their
+    points, or, for a one-handle object given its sphere forces, from the mean stress theorem. The same
+    elementwise formulas as for one object at a time (:func:`_object_frame`), bit for bit."""
     n = len(models)
-    geometry = []  # per object: cubature positions, F (None: uniform), det F, sphere centres, q and qdot as numpy
+    geometry = []  # per object: cubature positions, F (None: uniform), det F, sphere centres
     for model, contact, const, q in zip(models, contacts, constants, qs):
         x = model.positions(q)
         if const.uniform_f:  # the same F at every point: one point's, its determinant repeated
@@ -653,42 +655,11 @@ def _object_frame(
     sphere_force: torch.Tensor | None,
 ) -> tuple[dict, RigidFrame]:
     """One object's frame record, but its orientation and angular velocity (None here), and its rigid-body
-    moments (from which :meth:`FrameRecorder.record` derives those two for all objects at once)."""
-    x = model.positions(q)
-    if constants.uniform_f:  # the same F at every point: one point's, its determinant repeated
-        det_f = np.full(model.num_points, det3(deformation_from_tmat(model.c[:1], model.tmat(q)).numpy())[0])
-    else:
-        F = model.deformation_gradients(q)
-        det_f = det3(F.numpy())
-    sphere_x = contact.positions(q)
-    q_np = q.numpy()
-    # rigid-body quantities of the inertia particles (all of them when the model has them), from their moments
-    rigid = constants.moments.frame(q_np.reshape(3, -1), qdot.numpy().reshape(3, -1))
-    if sphere_force is not None and model.num_handles == 1:
-        mean = rigid_mean_hydrostatic_from_spin_pa(
-            constants.volume_m3, rigid.com_m, rigid.spin_j, sphere_x.numpy(), constants.contact_radius_m,
-            sphere_force.numpy(),
-        )
-        stress = np.full(model.num_points, mean)
-    else:
-        stress = mat.hydrostatic_stress(model.deformation_gradients(q) if constants.uniform_f else F, model.mu_pa,
-                                        model.lam_pa).numpy()  # fmt: skip
-    frame = {
-        "handle_transforms": q_np[constants.z_from_q],
-        "cubature_positions_m": x.numpy(),
-        "contact_positions_m": sphere_x.numpy(),
-        "gravity_force_n": constants.gravity_force_n,
-        "contact_force_n": force.numpy().copy(),
-        "contact_partner": partner.numpy().copy(),
-        "hydrostatic_stress_pa": stress,
-        "det_f": det_f,
-        "com_m": rigid.com_m,
-        "orientation_wxyz": None,  # FrameRecorder.record fills these two for all objects at once
-        "velocity_m_s": rigid.velocity_m_s,
-        "angular_velocity_rad_s": None,
-        "asleep": np.bool_(asleep),
-    }
-    return frame, rigid
+    moments (from which :meth:`FrameRecorder.record` derives those two for all objects at once):
+    :func:`_object_frames` of this object alone."""
+    frames, rigids = _object_frames([model], [contact], [constants], [q], [qdot], [force], [partner], [asleep],
+                                    None if sphere_force is None else [sphere_force])  # fmt: skip
+    return frames[0], rigids[0]
 
 
 def rigid_mean_hydrostatic_pa(

@@ -277,6 +277,18 @@ def test_single_matrix_helpers_match_the_batched_functions():
     np.testing.assert_allclose(det3(f), np.linalg.det(f), rtol=1e-13, atol=1e-15)
 
 
+def _random_frame_inputs(models: list[ReducedObject], contacts: list[ContactPoints], seed: int,
+                         gen: torch.Generator) -> tuple[list, list, list, list, list, list]:  # fmt: skip
+    """One frame's recorder inputs for these objects: random states (seeds ``seed + k``), per cubature point random
+    forces (N) and partners, per sphere random forces (N) (all from ``gen``), every other object asleep."""
+    states = [_random_state(o, seed + k) for k, o in enumerate(models)]
+    qs, qdots = [s_[0] for s_ in states], [s_[1] for s_ in states]
+    forces = [torch.randn(o.num_points, 3, generator=gen, dtype=D) for o in models]
+    partners = [torch.randint(-1, 3, (o.num_points,), generator=gen) for o in models]
+    sphere = [torch.randn(c.num_points, 3, generator=gen, dtype=D) for c in contacts]
+    return qs, qdots, forces, partners, sphere, [bool(k % 2) for k in range(len(models))]
+
+
 def test_one_handle_groups_record_what_the_per_object_frames_record():
     """``FrameRecorder`` takes the frames of one-handle objects batched per (cubature points, spheres) group
     (``OneHandleGroup``): every recorded array of every object equals, bit for bit, what the recorder without
@@ -300,13 +312,8 @@ def test_one_handle_groups_record_what_the_per_object_frames_record():
     assert not grouped._grouped[1]
     gen = torch.Generator().manual_seed(5)
     for frame in range(3):
-        states = [_random_state(o, 100 * frame + k) for k, o in enumerate(models)]
-        qs, qdots = [s_[0] for s_ in states], [s_[1] for s_ in states]
-        forces = [torch.randn(o.num_points, 3, generator=gen, dtype=D) for o in models]
-        partners = [torch.randint(-1, 3, (o.num_points,), generator=gen) for o in models]
-        sphere = [torch.randn(c.num_points, 3, generator=gen, dtype=D) for c in contacts]
+        qs, qdots, forces, partners, sphere, asleep = _random_frame_inputs(models, contacts, 100 * frame, gen)
         sphere[0][:3] = 0.0  # spheres without contact
-        asleep = [bool(k % 2) for k in range(n)]
         for rec in (grouped, single):
             rec.record(qs, qdots, forces, partners, asleep, {}, sphere_forces=sphere if frame != 1 else None)
     for k in range(n):
@@ -339,12 +346,8 @@ def test_batched_frames_of_several_objects_equal_the_per_object_frames():
     assert not recorder._grouped.any()
     gen = torch.Generator().manual_seed(6)
     for frame in range(2):
-        states = [_random_state(o, 200 * frame + k) for k, o in enumerate(models)]
-        qs, qdots = [s_[0] for s_ in states], [s_[1] for s_ in states]
-        forces = [torch.randn(o.num_points, 3, generator=gen, dtype=D) for o in models]
-        partners = [torch.randint(-1, 3, (o.num_points,), generator=gen) for o in models]
-        sphere = [torch.randn(c.num_points, 3, generator=gen, dtype=D) for c in contacts] if frame == 0 else None
-        asleep = [bool(k % 2) for k in range(n)]
+        qs, qdots, forces, partners, sphere, asleep = _random_frame_inputs(models, contacts, 200 * frame, gen)
+        sphere = sphere if frame == 0 else None
         batched, batched_rigid = _object_frames(models, contacts, recorder.constants, qs, qdots, forces, partners,
                                                 asleep, sphere)  # fmt: skip
         for k in range(n):
