@@ -1,0 +1,296 @@
+"""The CUDA paths on a GPU: are they right (against the CPU, same inputs), and how many frames per second do they give
+(issue 13, item 4).
+
+Run on a machine with a CUDA GPU (the `device` tool's machine); on this 2-core CPU machine ``--device cpu`` runs the
+same code against itself (a dry run of the script: every comparison must then be exact).
+
+1. **Broad phase** (``PairFinder``): on the GPU the cell grid is built by parallel launches (atomics and a scan).
+   Random clouds of 2-60 objects: the pairs must equal the CPU's, and the grids (boxes, reaches, cell layout, each
+   cell's run of points as a set: the scatter's order within a cell is the atomics') must be the same.  Also the time
+   of one ``find`` over 50 objects x 256 spheres, CPU single thread against the GPU.
+2. **Rasterizers** on random splats (``bench_render.make_scene``): the label index, depth and RGB of the GPU (the
+   tile-binned RGB pipeline, its default there) against the CPU's (row bands), and their times per frame.
+3. **A whole sequence** at the size the issue names: ``--objects`` 10 objects with ``--cubature`` 1,000 cubature
+   points each (10^4), ``--gaussians`` 10^5 surface splats each (10^6 with the floor's), ``--size`` 512^2, a ``pile``
+   of the shipped scenario, ``standard`` preset. Simulated once (the solver runs on the CPU: its island kernels run
+   one island per thread, the wrong shape for a GPU, and its torch model lives on the CPU), then rendered (RGB lit
+   with shadows and all 11 label maps, ``data_gen.pipeline.render_sequence``) with ``render.device`` the GPU and
+   again the CPU (``num_threads`` = the machine's cores): every contract map compared, and frames per second of
+   simulation, of rendering on each device and of the two together.
+
+Prints a table and writes ``cuda.json`` (``--out``, default ``bench/results/cuda.json``) and ``cuda_frame.png``
+(the last frame's RGB, GPU above CPU).
+
+    python bench/bench_cuda.py                         # on a GPU machine: everything, full size
+    python bench/bench_cuda.py --device cpu --quick    # here: a dry run at small sizes
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import warp as wp
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_render import make_scene  # noqa: E402
+
+from data_gen.configs import render_settings, scenario_config  # noqa: E402
+from data_gen.pipeline import build_objects, get_scene_layout, render_sequence, simulate  # noqa: E402
+from data_gen.render.labels import LabelRasterizer  # noqa: E402
+from data_gen.render.rgb import RgbRasterizer  # noqa: E402
+from data_gen.scenario import sample_scenario  # noqa: E402
+from data_gen.sim.contact import PairFinder  # noqa: E402
+from data_gen.sim.presets import load_preset  # noqa: E402
+from newtphys import schema  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _sync(device: str) -> None:
+    wp.synchronize_device(device)
+
+
+def _timed(fn, device: str, reps: int) -> tuple[float, object]:
+    """(median wall s of ``reps`` calls after one untimed call, the last result); the device is synchronised
+    around each call (the results are read back to numpy by the calls themselves)."""
+    out = fn()
+    times = []
+    for _ in range(reps):
+        _sync(device)
+        t0 = time.perf_counter()
+        out = fn()
+        _sync(device)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+# --------------------------------------------------------------------------------------------- 1. broad phase
+def _cloud(rng: np.random.Generator, num_objects: int, spheres: int) -> tuple[np.ndarray, ...]:
+    """Objects of ``spheres`` contact spheres (radius 4-12 mm) in 10 cm blobs packed so that neighbours touch."""
+    side = int(np.ceil(num_objects ** (1 / 3)))
+    centres = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3)[:num_objects] * 0.17
+    points = np.concatenate([c + rng.normal(0.0, 0.05, (spheres, 3)) for c in centres])
+    ids = np.repeat(np.arange(num_objects) * 3 + 1, spheres)  # sparse ids, as a scene's object ids may be
+    radii = rng.uniform(0.004, 0.012, len(points))
+    margins = rng.uniform(0.0, 0.004, len(points))
+    return points, ids, radii, margins
+
+
+def _same_grid(a: dict, b: dict) -> bool:
+    """The two grids have the same boxes, layout and cells, each cell holding the same points (in any order)."""
+    for key in ("close", "width", "lo", "hi", "reach", "dims", "first", "cell_start"):
+        if not np.array_equal(np.asarray(a[key]), np.asarray(b[key])):
+            return False
+    starts = a["cell_start"]
+    pa, pb = a["cell_points"], b["cell_points"]
+    return all(np.array_equal(np.sort(pa[s:e]), np.sort(pb[s:e])) for s, e in zip(starts[:-1], starts[1:]))
+
+
+def check_pairs(device: str, quick: bool) -> dict:
+    rng = np.random.default_rng(0)
+    cpu, other = PairFinder("cpu"), PairFinder(device, parallel_grid=True)  # (the default off the CPU)
+    trials, mismatched_pairs, mismatched_grids, total_pairs = 0, 0, 0, 0
+    for num_objects in (2, 5, 10, 27, 60):
+        for spheres in (16, 128) if quick else (16, 128, 512):
+            points, ids, radii, margins = _cloud(rng, num_objects, spheres)
+            margin = float(rng.uniform(0.0, 0.01))
+            want = cpu.find(points, ids, radii, margin, margins)
+            got = other.find(points, ids, radii, margin, margins)
+            trials += 1
+            total_pairs += len(want)
+            mismatched_pairs += int(not np.array_equal(want, got))
+            width = 0.25 * (2 * radii.max() + margin + 2 * margins.max())
+            grid_a = cpu.build_cells(points, ids, radii, margin, width, margins)
+            grid_b = other.build_cells(points, ids, radii, margin, width, margins)
+            mismatched_grids += int(not _same_grid(grid_a, grid_b))
+    # time: a 50-box pile's spheres (256 each), the solver's call every step
+    points, ids, radii, margins = _cloud(rng, 50, 256)
+    t_cpu, _ = _timed(lambda: cpu.find(points, ids, radii, 0.005, margins), "cpu", 5 if quick else 20)
+    t_dev, _ = _timed(lambda: other.find(points, ids, radii, 0.005, margins), device, 5 if quick else 20)
+    return {"trials": trials, "pairs_compared": total_pairs, "pair_sets_different": mismatched_pairs,
+            "grids_different": mismatched_grids, "find_50x256_cpu_ms": 1e3 * t_cpu,
+            "find_50x256_device_ms": 1e3 * t_dev}  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------- 2. rasterizers
+def check_rasterizers(device: str, quick: bool) -> list[dict]:
+    rows = []
+    threads = os.cpu_count() or 1
+    for side, n in ((128, 20_000),) if quick else ((256, 100_000), (512, 1_000_000)):
+        g, K, w2c = make_scene(n, side, seed=side)
+        out = {"side_px": side, "gaussians": n}
+        results = {}
+        for key, dev in (("cpu", "cpu"), ("device", device)):
+            lab = LabelRasterizer(side, side, dev, threads)
+            rgb = RgbRasterizer(side, side, dev, threads)
+            t_lab, (index, depth) = _timed(lambda lab=lab: lab.render(g, K, w2c), dev, 3 if quick else 10)
+            t_rgb, (colour, alpha) = _timed(lambda rgb=rgb: rgb.render(g, K, w2c), dev, 3 if quick else 10)
+            results[key] = (index, depth, colour, alpha)
+            out[f"labels_{key}_ms"], out[f"rgb_{key}_ms"] = 1e3 * t_lab, 1e3 * t_rgb
+            out[f"rgb_{key}_pipeline"] = rgb.pipeline
+        (i0, d0, c0, a0), (i1, d1, c1, a1) = results["cpu"], results["device"]
+        same = i0 == i1
+        out["index_equal_fraction"] = float(same.mean())
+        out["depth_max_abs_diff_m_where_index_equal"] = float(np.abs(d0 - d1)[same].max(initial=0.0))
+        out["rgb_max_abs_diff"] = float(np.abs(c0 - c1).max())
+        out["rgb_mean_abs_diff"] = float(np.abs(c0 - c1).mean())
+        out["alpha_max_abs_diff"] = float(np.abs(a0 - a1).max())
+        rows.append(out)
+    return rows
+
+
+# --------------------------------------------------------------------------------------------- 3. a sequence
+def _compare_maps(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, dict]:
+    """Per contract map: the fraction of equal entries, and for float maps the largest absolute difference."""
+    out = {}
+    for name in schema.MAPS:
+        x, y = a[name], b[name]
+        row = {"equal_fraction": float((x == y).mean())}
+        if x.dtype.kind == "f":
+            diff = np.abs(x.astype(np.float64) - y.astype(np.float64))
+            row["max_abs_diff"] = float(diff.max(initial=0.0))
+            row["p99_abs_diff"] = float(np.quantile(diff, 0.99)) if diff.size else 0.0
+        elif name == schema.RGB:
+            diff = np.abs(x.astype(np.int16) - y.astype(np.int16))
+            row["max_abs_diff"] = int(diff.max(initial=0))
+            row["mean_abs_diff"] = float(diff.mean())
+        out[name] = row
+    return out
+
+
+def run_sequence(device: str, args: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray]]:
+    threads = os.cpu_count() or 1
+    cfg = scenario_config("pile", scenes=("empty_floor",), num_objects=(args.objects, args.objects))
+    preset = dataclasses.replace(load_preset("standard"), num_cubature_points=args.cubature)
+    base = dict(object_gaussians=args.gaussians, interior_points=2 * args.cubature, num_threads=threads)
+    settings = {"cpu": render_settings(device="cpu", **base), "device": render_settings(device=device, **base)}
+    scenario = sample_scenario(cfg, "cuda-bench-000000", 1000, "train", "earth", args.frames, 25.0,
+                               (args.size, args.size))  # fmt: skip
+    layout = get_scene_layout(scenario.scene)
+    objects = build_objects(scenario, settings["cpu"])
+    t0 = time.perf_counter()
+    result = simulate(scenario, objects, layout, preset, training_threads=threads)
+    sim_s = time.perf_counter() - t0
+    setup_s = float(result.info.timings_s["setup"])
+    out = {"objects": len(objects), "frames": args.frames, "image_px": [args.size, args.size],
+           "cubature_points": int(sum(len(t.points_rest_m) for t in result.objects)),
+           "splats": int(sum(len(o.surface) for o in objects)),  # objects' surface splats (+ the floor's, below)
+           "handles": [int(t.num_handles) for t in result.objects],
+           "newton_iterations": int(result.info.newton_iterations),
+           "simulate_s": sim_s, "simulate_setup_s": setup_s}  # fmt: skip
+    maps = {}
+    for key, dev in (("device", device), ("cpu", "cpu")):
+        times = []
+        for rep in range(2 if key == "device" else 1):  # the first GPU render loads its kernels: the second is timed
+            _sync(dev)
+            t1 = time.perf_counter()
+            maps[key], _, _ = render_sequence(scenario, objects, layout, result, settings[key])
+            _sync(dev)
+            times.append(time.perf_counter() - t1)
+        out[f"render_{key}_s"] = times[-1]
+        if len(times) > 1:
+            out[f"render_{key}_first_s"] = times[0]
+    frames = args.frames
+    sim_run = sim_s - setup_s
+    out["fps"] = {
+        "simulate": frames / sim_run,
+        "render_device": frames / out["render_device_s"],
+        "render_cpu": frames / out["render_cpu_s"],
+        "simulate_and_render_device": frames / (sim_run + out["render_device_s"]),
+        "simulate_and_render_cpu": frames / (sim_run + out["render_cpu_s"]),
+    }
+    out["maps_device_vs_cpu"] = _compare_maps(maps["device"], maps["cpu"])
+    return out, maps
+
+
+def _save_frame(maps: dict, path: Path) -> None:
+    import imageio.v3 as iio
+
+    top, bottom = maps["device"][schema.RGB][-1], maps["cpu"][schema.RGB][-1]
+    iio.imwrite(path, np.concatenate([top, bottom], axis=0))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="cuda", help="the device checked against the CPU (cuda, cuda:0, cpu)")
+    ap.add_argument("--quick", action="store_true", help="small sizes (a dry run)")
+    ap.add_argument("--objects", type=int, default=None)
+    ap.add_argument("--cubature", type=int, default=None, help="cubature points per object")
+    ap.add_argument("--gaussians", type=int, default=None, help="surface splats per object")
+    ap.add_argument("--size", type=int, default=None, help="image side, px")
+    ap.add_argument("--frames", type=int, default=None)
+    ap.add_argument("--skip", nargs="*", default=[], choices=["pairs", "raster", "sequence"])
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "cuda.json")
+    args = ap.parse_args()
+    quick = dict(objects=3, cubature=64, gaussians=5_000, size=128, frames=6)
+    full = dict(objects=10, cubature=1000, gaussians=100_000, size=512, frames=25)
+    for k, v in (quick if args.quick else full).items():
+        if getattr(args, k) is None:
+            setattr(args, k, v)
+    wp.init()
+    device = args.device
+    dev = wp.get_device(device)
+    report = {"device": device, "device_name": dev.name if dev.is_cpu else f"{dev.name} (sm_{dev.arch})",
+              "cpu": platform.processor() or platform.machine(), "cpu_count": os.cpu_count(),
+              "warp": wp.config.version, "torch": torch.__version__, "numpy": np.__version__,
+              "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}}  # fmt: skip
+    print(f"device {report['device_name']}, {report['cpu_count']} CPU cores ({report['cpu']}), warp "
+          f"{report['warp']}, torch {report['torch']}", flush=True)  # fmt: skip
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+
+    def save() -> None:
+        args.out.write_text(json.dumps(report, indent=1))
+
+    failures = []
+    if "pairs" not in args.skip:
+        t = time.perf_counter()
+        report["pairs"] = p = check_pairs(device, args.quick)
+        save()
+        print(f"[pairs] {p['trials']} clouds, {p['pairs_compared']} pairs: pair sets different "
+              f"{p['pair_sets_different']}, grids different {p['grids_different']}; find 50x256: CPU "
+              f"{p['find_50x256_cpu_ms']:.2f} ms, {device} {p['find_50x256_device_ms']:.2f} ms "
+              f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
+        if p["pair_sets_different"] or p["grids_different"]:
+            failures.append("pairs")
+    if "raster" not in args.skip:
+        t = time.perf_counter()
+        report["rasterizers"] = rows = check_rasterizers(device, args.quick)
+        save()
+        for r in rows:
+            print(f"[raster] {r['side_px']}^2, {r['gaussians']} splats: labels CPU {r['labels_cpu_ms']:.1f} ms, "
+                  f"{device} {r['labels_device_ms']:.1f} ms; RGB CPU ({r['rgb_cpu_pipeline']}) {r['rgb_cpu_ms']:.1f} "
+                  f"ms, {device} ({r['rgb_device_pipeline']}) {r['rgb_device_ms']:.1f} ms; index equal "
+                  f"{r['index_equal_fraction']:.6f}, depth diff {r['depth_max_abs_diff_m_where_index_equal']:.2e} m, "
+                  f"RGB max diff {r['rgb_max_abs_diff']:.2e} (mean {r['rgb_mean_abs_diff']:.2e})", flush=True)  # fmt: skip
+        print(f"[raster] ({time.perf_counter() - t:.0f} s)", flush=True)
+    if "sequence" not in args.skip:
+        seq, maps = run_sequence(device, args)
+        report["sequence"] = seq
+        save()
+        _save_frame(maps, args.out.with_name(args.out.stem + "_frame.png"))
+        fps = seq["fps"]
+        print(f"[sequence] {seq['objects']} objects, {seq['cubature_points']} cubature points, {seq['splats']} object "
+              f"splats, {args.size}^2, {seq['frames']} frames: simulate {seq['simulate_s']:.1f} s (set-up "
+              f"{seq['simulate_setup_s']:.1f} s), render {device} {seq['render_device_s']:.2f} s (first "
+              f"{seq.get('render_device_first_s', float('nan')):.2f} s), render CPU {seq['render_cpu_s']:.2f} s",
+              flush=True)  # fmt: skip
+        print("[sequence] FPS: " + ", ".join(f"{k} {v:.2f}" for k, v in fps.items()), flush=True)
+        for name, row in seq["maps_device_vs_cpu"].items():
+            print(f"[maps] {name:<32}" + ", ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
+    report["failures"] = failures
+    save()
+    print(f"wrote {args.out}; failures: {failures or 'none'}")
+    sys.exit(1 if failures else 0)
+
+
+if __name__ == "__main__":
+    main()
