@@ -47,11 +47,12 @@ from data_gen.assets.shapes import Scaled, Shape, Shell
 from data_gen.assets.voxel_shape import VoxelShape
 from data_gen.cameras import path_from_spec
 from data_gen.display_names import color_name, display_names
-from data_gen.gaussians import Gaussians, deform_normals
+from data_gen.gaussians import Gaussians
 from data_gen.object_boxes import oriented_box
 from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent_m
 from data_gen.render.rgb import RgbRasterizer
+from data_gen.render.splat_pose import SplatPoser
 from data_gen.scenario import Scenario
 from data_gen.sim.contact_points import SurfaceSamples
 from data_gen.sim.energy_rise import MAX_ENERGY_RISE_FRACTION, run_energy_rise
@@ -59,14 +60,14 @@ from data_gen.sim.material import Material
 from data_gen.sim.overlap import MAX_OVERLAP_FRACTION, deepest_overlap
 from data_gen.sim.presets import QualityPreset
 from data_gen.sim.recording import SimulationResult
-from data_gen.sim.reduced import affine_basis, deformation_basis, deformation_from_tmat, displacement_from_tmat, tmat_from_z
+from data_gen.sim.reduced import affine_basis, deformation_basis, displacement_from_tmat, tmat_from_z
 from data_gen.sim.solver import SimulationError
 from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
 from data_gen.sim.threads import torch_threads
 from data_gen.sim.world import SimObjectSpec, Simulator, UnsimulatableDraw
 from newtphys import geometry, schema
 from newtphys.consistency import optical_flow_from_scene_flow
-from newtphys.rotations import matrix_to_quat, quat_to_matrix
+from newtphys.rotations import quat_to_matrix
 from newtphys.shards import SequenceArrays
 from newtphys.world_state import (
     CameraPose,
@@ -286,10 +287,11 @@ class SkinnedSurface:
     surface Gaussian are evaluated once; each frame then costs two small
     matrix products (x = x0 + Tm b, F = I + Tm C). A deformed splat's
     covariance (F R S)(F R S)^T is stored back as rotation + scales through the
-    SVD of F R S, so it stays a valid Gaussian by construction.
+    SVD of F R S, so it stays a valid Gaussian by construction: one warp launch
+    per frame on ``device`` (:class:`~data_gen.render.splat_pose.SplatPoser`).
     """
 
-    def __init__(self, surface: Gaussians, track) -> None:
+    def __init__(self, surface: Gaussians, track, device: str = "cpu") -> None:
         x0 = torch.as_tensor(surface.means_m, dtype=torch.float64)
         w, g = track.basis.evaluate(x0)
         self.x0 = x0
@@ -299,11 +301,16 @@ class SkinnedSurface:
         self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64)[:, None, :]
         self.n0 = surface.surface_normals()
         self.track = track
+        self.device = device
+        self._poser: SplatPoser | None = None  # built at the first pose (means_at needs none)
+
+    def tmat(self, frame: int) -> torch.Tensor:
+        """The handle matrix Tm (3, 4H) at ``frame``."""
+        return tmat_from_z(torch.as_tensor(self.track.handle_transforms[frame], dtype=torch.float64))
 
     def means_at(self, frame: int) -> np.ndarray:
         """World centres (n, 3) m at ``frame`` (no covariance: cheap)."""
-        tm = tmat_from_z(torch.as_tensor(self.track.handle_transforms[frame], dtype=torch.float64))
-        return (self.x0 + displacement_from_tmat(self.b, tm)).numpy()
+        return (self.x0 + displacement_from_tmat(self.b, self.tmat(frame))).numpy()
 
     def at(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World centres (n, 3) m, scales (n, 3) m and rotations (n, 4) wxyz at ``frame``."""
@@ -312,13 +319,9 @@ class SkinnedSurface:
     def pose(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`at` plus the unit normals (n, 3) at ``frame``: F^-T n0, renormalised (F = dx/dx0 holds the
         object's rotation and deformation)."""
-        tm = tmat_from_z(torch.as_tensor(self.track.handle_transforms[frame], dtype=torch.float64))
-        x = self.x0 + displacement_from_tmat(self.b, tm)
-        f = deformation_from_tmat(self.c, tm)
-        m = f @ self.rs
-        u, sv, _ = torch.linalg.svd(m)
-        u[:, :, 2] *= torch.sign(torch.linalg.det(u))[:, None]  # proper rotation; cov = U S^2 U^T unchanged
-        return x.numpy(), sv.clamp_min(1e-9).numpy(), matrix_to_quat(u.numpy()), deform_normals(self.n0, f.numpy())
+        if self._poser is None:
+            self._poser = SplatPoser(self.x0, self.b, self.c, self.rs, self.n0, self.device)
+        return self._poser.pose(self.tmat(frame))
 
 
 def scene_lighting(layout: SceneLayout, settings: RenderSettings, objects: list[SceneObject],
@@ -359,7 +362,7 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     material = np.concatenate([scene_mats[scene_g.part_ids]] + [np.full(s, o.material_id, np.uint8) for o, s in zip(objects, sizes)])
     semantic = np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.semantic_id, np.uint16) for o, s in zip(objects, sizes)])
     tracks = {t.object_id: t for t in result.objects}
-    skinned = [SkinnedSurface(o.surface, tracks[o.object_id]) for o in objects]
+    skinned = [SkinnedSurface(o.surface, tracks[o.object_id], settings.device) for o in objects]
     # Nearest cubature point of every surface Gaussian, in the rest frame (fixed for the sequence).
     nearest = [cKDTree(tracks[o.object_id].points_rest_m).query(o.surface.means_m.astype(np.float64))[1] for o in objects]
     gravity = np.asarray(scenario.gravity_m_s2, np.float64)
