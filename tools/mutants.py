@@ -18,6 +18,7 @@ LABEL_TESTS = "tests/data_gen/test_gen_labels.py"
 
 DEFAULT_TESTS: dict[str, tuple[str, ...]] = {
     "probes/metrics.py": ("tests/probes/test_probes_metrics.py",),
+    "data_gen/render/splat_pose.py": ("tests/render/test_splat_pose.py", "tests/data_gen/test_gaussian_normals.py"),
     "newtphys/consistency.py": ("tests/newtphys/test_core_consistency.py", LABEL_TESTS),
     "data_gen/pipeline.py": (LABEL_TESTS,),
     "data_gen/render/labels.py": ("tests/render/test_render_labels.py", LABEL_TESTS),
@@ -450,6 +451,13 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("vlm_first_letter_instead_of_last", "newtphys/vqa_scoring.py",
            '_LAST_LETTER = re.compile(r"(?:^|[^A-Za-z])([A-Da-d])$")',
            '_LAST_LETTER = re.compile(r"^([A-Da-d])(?:[^A-Za-z]|$)")'),
+    # --- splat poses (the render device's per-splat pose kernel) -------------------------------------
+    Mutant("splat_normal_ignores_inverting_deformation", "data_gen/render/splat_pose.py",
+           "    if wp.determinant(f) < wp.float64(0.0):\n        m = -m\n",
+           "    if wp.determinant(f) < wp.float64(-1e30):\n        m = -m\n"),
+    Mutant("splat_deformation_transposed", "data_gen/render/splat_pose.py",
+           "f += wp.outer(t, wp.vec3d(c[i, j, 0], c[i, j, 1], c[i, j, 2]))",
+           "f += wp.outer(wp.vec3d(c[i, j, 0], c[i, j, 1], c[i, j, 2]), t)"),
     # --- metrics ------------------------------------------------------------------------------------
     Mutant("f1_false_negatives_off_the_mask", METRICS,
            "fn = (~p & t & m).sum()",

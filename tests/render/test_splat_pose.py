@@ -97,6 +97,22 @@ def test_flattened_splat_keeps_a_minimum_scale_and_a_collapsed_normal_keeps_its_
     np.testing.assert_allclose(normals, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], atol=1e-7)
 
 
+def test_normals_follow_an_inverting_deformation() -> None:
+    """F = diag(1, 1, -1) (a mirror, det F < 0, as a crushed soft object can briefly reach): F^-T n0 flips the z
+    normal and keeps the in-plane one; the scales are the rest scales."""
+    x0 = torch.zeros(2, 3, dtype=torch.float64)
+    w, grad = torch.ones(2, 1, dtype=torch.float64), torch.zeros(2, 1, 3, dtype=torch.float64)
+    b, c = affine_basis(x0, w), deformation_basis(x0, w, grad)
+    rs = torch.as_tensor(np.stack([np.diag([1e-3, 2e-3, 3e-3])] * 2))
+    n0 = np.array([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0]])
+    tm = torch.zeros(3, 4, dtype=torch.float64)
+    tm[2, 2] = -2.0  # F = diag(1, 1, -1)
+    _, scales, quats, normals = SplatPoser(x0, b, c, rs, n0).pose(tm)
+    np.testing.assert_allclose(normals, [[0.0, 0.0, -1.0], [0.6, 0.8, 0.0]], atol=1e-7)
+    np.testing.assert_allclose(normals, pose_reference(x0, b, c, rs, n0, tm)[3], atol=1e-7)
+    np.testing.assert_allclose(_covariance(scales, quats), np.stack([np.diag([1e-6, 4e-6, 9e-6])] * 2), atol=1e-18)
+
+
 def test_poser_refuses_mismatched_shapes_by_name() -> None:
     x0, b, c, rs, n0, tm = _random_object(10, 2, seed=3)
     with pytest.raises(ValueError, match=r"need x0 \(n, 3\), b \(n, 4H\)"):
