@@ -1,0 +1,72 @@
+"""``bench/bench_cuda.py``, the script a GPU session runs (once per lent GPU, so it must work the first time): its
+dry run on the CPU compares the CPU with itself, where every comparison must come out exact (the serial and the
+parallel broad-phase grid, the two rasterizer instances, two renders of one sequence, two posers), and its grid
+comparison tells a last-bit cell width (reported) from a different grid (failed)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "bench_cuda.py"
+
+
+@pytest.fixture(scope="module")
+def bench_cuda():
+    sys.path.insert(0, str(BENCH.parent))
+    spec = importlib.util.spec_from_file_location("bench_cuda", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _grid(width: float = 0.01) -> dict:
+    return {"close": True, "width": width, "lo": np.zeros((2, 3)), "hi": np.ones((2, 3)), "reach": np.ones(2),
+            "dims": np.array([[2, 1, 1], [1, 1, 1]]), "first": np.array([0, 2]), "cell_start": np.array([0, 2, 3, 4]),
+            "cell_points": np.array([0, 1, 2, 3])}  # fmt: skip
+
+
+def test_grid_comparison_reports_a_last_bit_width_and_fails_a_different_grid(bench_cuda) -> None:
+    a = _grid()
+    assert bench_cuda._grid_differences(a, _grid()) == ({}, {})
+    shuffled = _grid()
+    shuffled["cell_points"] = np.array([1, 0, 2, 3])  # the same cell, another order: the same grid
+    assert bench_cuda._grid_differences(a, shuffled) == ({}, {})
+    diffs, notes = bench_cuda._grid_differences(a, _grid(0.01 * (1 + 1e-15)))
+    assert diffs == {} and set(notes) == {"width"}
+    diffs, _ = bench_cuda._grid_differences(a, _grid(0.011))
+    assert set(diffs) == {"width"}
+    moved = _grid()
+    moved["cell_points"] = np.array([0, 2, 1, 3])  # point 2 in the first cell, point 1 in the second
+    diffs, _ = bench_cuda._grid_differences(a, moved)
+    assert diffs == {"cell_points": "cell 0: [0, 1] vs [0, 2]"}
+
+
+def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
+    out = tmp_path / "cuda.json"
+    monkeypatch.setattr(sys, "argv", ["bench_cuda.py", "--device", "cpu", "--quick", "--out", str(out)])
+    with pytest.raises(SystemExit) as stop:
+        bench_cuda.main()
+    assert stop.value.code == 0
+    report = json.loads(out.read_text())
+    assert report["failures"] == []
+    pairs = report["pairs"]
+    assert pairs["pairs_compared"] > 1000 and pairs["pair_sets_different"] == 0 and pairs["grids_different"] == 0
+    assert pairs["grid_differences"] == []  # the serial and the parallel build: not even a width note
+    for row in report["rasterizers"]:
+        assert row["index_equal_fraction"] == 1.0 and row["rgb_max_abs_diff"] == 0.0
+        assert row["rgb_cpu_pipeline"] == row["rgb_device_pipeline"] == "bands"
+    seq = report["sequence"]
+    assert seq["objects"] == 3 and seq["frames"] == 6 and seq["cubature_points"] == 3 * 64
+    assert set(seq["fps"]) == {"simulate", "render_device", "simulate_and_render_device", "render_cpu",
+                               "simulate_and_render_cpu"}  # fmt: skip
+    assert all(v > 0 for v in seq["fps"].values())
+    assert all(v == 0 for k, v in seq["pose_device_vs_cpu"].items() if k.endswith("diff") or "_diff_" in k)
+    assert len(seq["maps_device_vs_cpu"]) == 13
+    assert all(row["equal_fraction"] == 1.0 for row in seq["maps_device_vs_cpu"].values())
+    assert (tmp_path / "cuda_frame.png").is_file()
