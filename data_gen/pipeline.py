@@ -345,9 +345,18 @@ def scene_lighting(layout: SceneLayout, settings: RenderSettings, objects: list[
     return lighting
 
 
+def skinned_surfaces(objects: list[SceneObject], result: SimulationResult, device: str = "cpu") -> list[SkinnedSurface]:
+    """Every object's :class:`SkinnedSurface` (its skinning basis evaluated at every surface splat, once per
+    sequence: the renderer and the world state share them)."""
+    tracks = {t.object_id: t for t in result.objects}
+    return [SkinnedSurface(o.surface, tracks[o.object_id], device) for o in objects]
+
+
 def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
-                    settings: RenderSettings) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-    """Every map of the contract for every frame: (maps, K float32, world_to_camera float32)."""
+                    settings: RenderSettings, skinned: list[SkinnedSurface] | None = None,
+                    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:  # fmt: skip
+    """Every map of the contract for every frame: (maps, K float32, world_to_camera float32). ``skinned``: the
+    objects' :func:`skinned_surfaces` (built here when None)."""
     K, w2c = camera_matrices(scenario)
     h, w = scenario.image_size
     t_count, n_obj = scenario.num_frames, len(objects)
@@ -362,7 +371,8 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     material = np.concatenate([scene_mats[scene_g.part_ids]] + [np.full(s, o.material_id, np.uint8) for o, s in zip(objects, sizes)])
     semantic = np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.semantic_id, np.uint16) for o, s in zip(objects, sizes)])
     tracks = {t.object_id: t for t in result.objects}
-    skinned = [SkinnedSurface(o.surface, tracks[o.object_id], settings.device) for o in objects]
+    if skinned is None:
+        skinned = skinned_surfaces(objects, result, settings.device)
     # Nearest cubature point of every surface Gaussian, in the rest frame (fixed for the sequence).
     nearest = [cKDTree(tracks[o.object_id].points_rest_m).query(o.surface.means_m.astype(np.float64))[1] for o in objects]
     gravity = np.asarray(scenario.gravity_m_s2, np.float64)
@@ -442,13 +452,15 @@ def camera_fov_deg(K: np.ndarray, image_size: tuple[int, int]) -> dict[str, floa
 
 def build_world_state(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
                       maps: dict[str, np.ndarray], K: np.ndarray, world_to_camera: np.ndarray,
-                      wall_time_s: float, lit: bool = True) -> WorldState:
+                      wall_time_s: float, lit: bool = True, surfaces: list[SkinnedSurface] | None = None) -> WorldState:
     """The world-state JSON of a generated sequence (data contract), with what questions read: per frame and
     object the oriented box of the deformed object, per frame the camera's field of view, per object a
     display name unique in the scene, its colour word and its material taxonomy (scene materials too), and,
-    when the RGB was ``lit``, the scene's light."""
+    when the RGB was ``lit``, the scene's light. ``surfaces``: the objects' :func:`skinned_surfaces` (the
+    renderer's, built here when None)."""
     tracks = {t.object_id: t for t in result.objects}
-    surfaces = [SkinnedSurface(o.surface, tracks[o.object_id]) for o in objects]
+    if surfaces is None:
+        surfaces = skinned_surfaces(objects, result)
     fov = camera_fov_deg(K, scenario.image_size)
     frames = []
     for t in range(scenario.num_frames):
@@ -525,7 +537,8 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
     result = simulate(scenario, objects, layout, preset, skinning_cache_dir, training_threads=settings.num_threads)
     t2 = time.perf_counter()
     with torch_threads(1):  # the per-frame products are small: one thread beats a contended pool
-        maps, K, w2c = render_sequence(scenario, objects, layout, result, settings)
+        skinned = skinned_surfaces(objects, result, settings.device)
+        maps, K, w2c = render_sequence(scenario, objects, layout, result, settings, skinned)
     t3 = time.perf_counter()
     visible = [int((maps[schema.INSTANCES][-1] == o.object_id).sum()) >= settings.min_visible_pixels for o in objects]
     if sum(visible) < min(settings.min_visible_objects, len(objects)):
@@ -535,7 +548,7 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
         if arr.dtype.kind == "f" and not np.isfinite(arr).all():
             raise SequenceRejected("nan", f"map {name} has non-finite values")
     ws = build_world_state(scenario, objects, layout, result, maps, K, w2c, time.perf_counter() - t0,
-                           lit=settings.lighting)
+                           lit=settings.lighting, surfaces=skinned)
     timings = {"prepare_s": t1 - t0, "simulate_s": t2 - t1, "sim_setup_s": float(result.info.timings_s["setup"]),
                "render_s": t3 - t2}  # (the simulator's set-up, skinning bases included, is part of simulate_s)
     return SequenceArrays(maps, K, w2c, ws), timings
