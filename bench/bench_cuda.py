@@ -45,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import make_scene  # noqa: E402
 
 from data_gen.configs import render_settings, scenario_config  # noqa: E402
-from data_gen.pipeline import build_objects, get_scene_layout, render_sequence, simulate  # noqa: E402
+from data_gen.pipeline import build_objects, get_scene_layout, render_sequence, simulate, skinned_surfaces  # noqa: E402
 from data_gen.render.labels import LabelRasterizer  # noqa: E402
 from data_gen.render.rgb import RgbRasterizer  # noqa: E402
 from data_gen.scenario import sample_scenario  # noqa: E402
@@ -228,7 +228,8 @@ def run_sequence(device: str, args: argparse.Namespace) -> tuple[dict, dict[str,
             _sync(dev)
             t1 = time.perf_counter()
             with torch_threads(1):  # as generate_sequence renders
-                maps[key], _, _ = render_sequence(scenario, objects, layout, result, settings[key])
+                skinned = skinned_surfaces(objects, result, dev)
+                maps[key], _, _ = render_sequence(scenario, objects, layout, result, settings[key], skinned)
             _sync(dev)
             times.append(time.perf_counter() - t1)
         out[f"render_{key}_s"] = times[-1]

@@ -536,7 +536,9 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
     t1 = time.perf_counter()
     result = simulate(scenario, objects, layout, preset, skinning_cache_dir, training_threads=settings.num_threads)
     t2 = time.perf_counter()
-    with torch_threads(1):  # the per-frame products are small: one thread beats a contended pool
+    with torch_threads(1):  # the per-frame products are small: one thread beats a contended pool; and the bases'
+        # evaluation at every splat, though large, stays on one thread: torch's products on 3 threads differ from 1 or
+        # 2 in the last bit (seen on this machine), and a sequence must not depend on render.num_threads
         skinned = skinned_surfaces(objects, result, settings.device)
         maps, K, w2c = render_sequence(scenario, objects, layout, result, settings, skinned)
     t3 = time.perf_counter()
