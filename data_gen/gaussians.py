@@ -57,9 +57,8 @@ def _as_float_array(name: str, value: ArrayLike, shape_tail: tuple[int, ...], co
         raise ValueError(f"Gaussians.{name} must have shape {expected}, got {arr.shape}")
     if count is not None and arr.shape[0] != count:
         raise ValueError(f"Gaussians.{name} has {arr.shape[0]} rows but means_m has {count}")
-    bad = _bad_rows(~np.isfinite(arr))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
+    if not np.isfinite(arr).all():  # (one pass; the offending row is looked up only on failure)
+        i = int(np.flatnonzero(_bad_rows(~np.isfinite(arr)))[0])
         raise ValueError(f"Gaussians.{name}[{i}] is not finite: {arr[i].tolist()}")
     return arr
 
@@ -70,6 +69,9 @@ def _bad_rows(flags: NDArray[np.bool_]) -> NDArray[np.bool_]:
 
 
 def _check_range(name: str, arr: F32, low: float, high: float) -> None:
+    """(``arr`` is finite: checked first.)"""
+    if arr.size == 0 or (arr.min() >= low and arr.max() <= high):
+        return
     bad = _bad_rows((arr < low) | (arr > high))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])

@@ -83,6 +83,27 @@ def test_bad_input_names_field_and_value(overrides: dict[str, object], message: 
         _one(**overrides)
 
 
+def test_bad_row_is_named_among_good_ones() -> None:
+    """The checks pass whole arrays in one reduction and look the offending row up only on failure: the row they
+    name is the first bad one, not row 0."""
+    n = 6
+    good = dict(means_m=np.zeros((n, 3)), scales_m=np.full((n, 3), 0.01), colors_rgb=np.full((n, 3), 0.5),
+                opacities=np.full(n, 0.5))  # fmt: skip
+    Gaussians(**good)
+    means = good["means_m"].copy()
+    means[4, 2] = np.inf
+    with pytest.raises(ValueError, match=r"means_m\[4\] is not finite: \[0.0, 0.0, inf\]"):
+        Gaussians(**{**good, "means_m": means})
+    opac = good["opacities"].copy()
+    opac[[3, 5]] = [1.25, -1.0]
+    with pytest.raises(ValueError, match=r"opacities\[3\] = 1.25 is outside the allowed range \[0.0, 1.0\]"):
+        Gaussians(**{**good, "opacities": opac})
+    colors = good["colors_rgb"].copy()
+    colors[2, 1] = 1.5
+    with pytest.raises(ValueError, match=r"colors_rgb\[2\] = \[0.5, 1.5, 0.5\] is outside"):
+        Gaussians(**{**good, "colors_rgb": colors})
+
+
 def test_bad_deformation_shape() -> None:
     with pytest.raises(ValueError, match=r"deformation_gradients must have shape \(1, 3, 3\), got \(3, 3\)"):
         _one().deformed(np.eye(3))
