@@ -19,7 +19,8 @@ same code against itself (a dry run of the script: every comparison must then be
    simulation, of rendering on each device and of the two together.
 
 Prints a table and writes ``cuda.json`` (``--out``, default ``bench/results/cuda.json``) and ``cuda_frame.png``
-(the last frame's RGB, GPU above CPU).
+(the last frame's RGB, GPU above CPU); ``--profile-render`` adds ``cuda_render_profile.txt`` (one more GPU render
+under cProfile: the host work around the kernels, which bounds the GPU render today).
 
     python bench/bench_cuda.py                         # on a GPU machine: everything, full size
     python bench/bench_cuda.py --device cpu --quick    # here: a dry run at small sizes
@@ -235,6 +236,21 @@ def run_sequence(device: str, args: argparse.Namespace) -> tuple[dict, dict[str,
         out[f"render_{key}_s"] = times[-1]
         if len(times) > 1:
             out[f"render_{key}_first_s"] = times[0]
+    if args.profile_render:  # one more device render under cProfile: where the host time around the kernels goes
+        import cProfile
+        import io
+        import pstats
+
+        profile = cProfile.Profile()
+        with torch_threads(1):
+            profile.enable()
+            render_sequence(scenario, objects, layout, result, settings["device"],
+                            skinned_surfaces(objects, result, device))  # fmt: skip
+            profile.disable()
+        text = io.StringIO()
+        pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(30)
+        pstats.Stats(profile, stream=text).sort_stats("cumulative").print_stats(30)
+        args.out.with_name(args.out.stem + "_render_profile.txt").write_text(text.getvalue())
     frames = args.frames
     sim_run = sim_s - setup_s
     out["fps"] = {"simulate": frames / sim_run}
@@ -286,6 +302,8 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=None, help="image side, px")
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--skip", nargs="*", default=[], choices=["pairs", "raster", "sequence"])
+    ap.add_argument("--profile-render", action="store_true", help="one more device render under cProfile, written "
+                    "to <out>_render_profile.txt")  # fmt: skip
     ap.add_argument("--no-cpu-render", action="store_true", help="render the sequence on the device only (no maps "
                     "compared; the poses still are)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "cuda.json")
