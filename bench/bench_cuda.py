@@ -18,9 +18,14 @@ same code against itself (a dry run of the script: every comparison must then be
    again the CPU (``num_threads`` = the machine's cores): every contract map compared, and frames per second of
    simulation, of rendering on each device and of the two together.
 
-Prints a table and writes ``cuda.json`` (``--out``, default ``bench/results/cuda.json``) and ``cuda_frame.png``
-(the last frame's RGB, GPU above CPU); ``--profile-render`` adds ``cuda_render_profile.txt`` (one more GPU render
-under cProfile: the host work around the kernels, which bounds the GPU render today).
+4. **A dataset sequence** (``--sequences dataset``): what a generation run renders by default at the paper's 1000 x 562
+   (5 objects dropped on the ``table`` layout, ``draft``, ``generate.yaml``'s 3,000 splats per object), the same
+   comparisons and times: whether a GPU pays for the data researchers generate.
+
+Prints a table and writes ``cuda.json`` (``--out``, default ``bench/results/cuda.json``) and per sequence
+``cuda_<name>_frame.png`` (the last frame's RGB, GPU above CPU); ``--profile-render`` adds
+``cuda_<name>_render_profile.txt`` (one more GPU render under cProfile: the host work around the kernels, which
+bounded the GPU render in the first run).
 
     python bench/bench_cuda.py                         # on a GPU machine: everything, full size
     python bench/bench_cuda.py --device cpu --quick    # here: a dry run at small sizes
@@ -197,14 +202,50 @@ def _compare_maps(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[st
     return out
 
 
-def run_sequence(device: str, args: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray]]:
+@dataclasses.dataclass(frozen=True)
+class SequenceSpec:
+    """One timed sequence: the scenario drawn, its size and the simulation preset."""
+
+    name: str
+    scenario: str
+    scene: str
+    objects: int
+    image_hw: tuple[int, int]
+    frames: int
+    preset: str
+    cubature: int | None = None
+    """Cubature points per object (None: the preset's)."""
+    gaussians: int | None = None
+    """Surface splats per object (None: ``generate.yaml``'s)."""
+
+
+def sequence_specs(args: argparse.Namespace) -> list[SequenceSpec]:
+    """``issue``: the issue's size (``--objects``, ``--cubature``, ``--gaussians``, ``--size``); ``dataset``: what a
+    generation run renders by default at the paper's resolution (5 objects dropped on the table, ``draft``,
+    ``generate.yaml``'s splats; 1000 x 562, 128 x 72 with ``--quick``)."""
+    specs = {
+        "issue": SequenceSpec("issue", "pile", "empty_floor", args.objects, (args.size, args.size), args.frames,
+                              "standard", args.cubature, args.gaussians),  # fmt: skip
+        "dataset": SequenceSpec("dataset", "drop", "table", 3 if args.quick else 5,
+                                (72, 128) if args.quick else (562, 1000), args.frames, "draft"),  # fmt: skip
+    }
+    return [specs[name] for name in args.sequences]
+
+
+def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> tuple[dict, dict[str, np.ndarray]]:
     threads = os.cpu_count() or 1
-    cfg = scenario_config("pile", scenes=("empty_floor",), num_objects=(args.objects, args.objects))
-    preset = dataclasses.replace(load_preset("standard"), num_cubature_points=args.cubature)
-    base = dict(object_gaussians=args.gaussians, interior_points=2 * args.cubature, num_threads=threads)
+    cfg = scenario_config(spec.scenario, scenes=(spec.scene,), num_objects=(spec.objects, spec.objects))
+    preset = load_preset(spec.preset)
+    if spec.cubature is not None:
+        preset = dataclasses.replace(preset, num_cubature_points=spec.cubature)
+    base: dict = dict(num_threads=threads)
+    if spec.gaussians is not None:
+        base["object_gaussians"] = spec.gaussians
+    if spec.cubature is not None:
+        base["interior_points"] = 2 * spec.cubature
     settings = {"cpu": render_settings(device="cpu", **base), "device": render_settings(device=device, **base)}
-    scenario = sample_scenario(cfg, "cuda-bench-000000", 1000, "train", "earth", args.frames, 25.0,
-                               (args.size, args.size))  # fmt: skip
+    scenario = sample_scenario(cfg, f"cuda-bench-{spec.name}", 1000, "train", "earth", spec.frames, 25.0,
+                               spec.image_hw)  # fmt: skip
     layout = get_scene_layout(scenario.scene)
     objects = build_objects(scenario, settings["cpu"])
     t0 = time.perf_counter()
@@ -215,7 +256,8 @@ def run_sequence(device: str, args: argparse.Namespace) -> tuple[dict, dict[str,
     result = simulate(scenario, objects, layout, preset, training_threads=threads)
     sim_s = time.perf_counter() - t0
     setup_s = float(result.info.timings_s["setup"])
-    out = {"objects": len(objects), "frames": args.frames, "image_px": [args.size, args.size],
+    out = {"scenario": f"{spec.scenario} on {spec.scene}", "preset": spec.preset, "objects": len(objects),
+           "frames": spec.frames, "image_hw_px": list(spec.image_hw),
            "cubature_points": int(sum(len(t.points_rest_m) for t in result.objects)),
            "splats": int(sum(len(o.surface) for o in objects)),  # objects' surface splats (+ the floor's, below)
            "handles": [int(t.num_handles) for t in result.objects],
@@ -250,8 +292,8 @@ def run_sequence(device: str, args: argparse.Namespace) -> tuple[dict, dict[str,
         text = io.StringIO()
         pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(30)
         pstats.Stats(profile, stream=text).sort_stats("cumulative").print_stats(30)
-        args.out.with_name(args.out.stem + "_render_profile.txt").write_text(text.getvalue())
-    frames = args.frames
+        args.out.with_name(f"{args.out.stem}_{spec.name}_render_profile.txt").write_text(text.getvalue())
+    frames = spec.frames
     sim_run = sim_s - setup_s
     out["fps"] = {"simulate": frames / sim_run}
     for key in maps:
@@ -302,6 +344,9 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=None, help="image side, px")
     ap.add_argument("--frames", type=int, default=None)
     ap.add_argument("--skip", nargs="*", default=[], choices=["pairs", "raster", "sequence"])
+    ap.add_argument("--sequences", nargs="+", default=["issue", "dataset"], choices=["issue", "dataset"],
+                    help="issue: the issue's 10-object / 10^6-splat / 512^2 sequence; dataset: a generation run's "
+                    "default sequence at 1000 x 562")  # fmt: skip
     ap.add_argument("--profile-render", action="store_true", help="one more device render under cProfile, written "
                     "to <out>_render_profile.txt")  # fmt: skip
     ap.add_argument("--no-cpu-render", action="store_true", help="render the sequence on the device only (no maps "
@@ -350,22 +395,25 @@ def main() -> None:
                   f"RGB max diff {r['rgb_max_abs_diff']:.2e} (mean {r['rgb_mean_abs_diff']:.2e})", flush=True)  # fmt: skip
         print(f"[raster] ({time.perf_counter() - t:.0f} s)", flush=True)
     if "sequence" not in args.skip:
-        seq, maps = run_sequence(device, args)
-        report["sequence"] = seq
-        save()
-        if "cpu" in maps:
-            _save_frame(maps, args.out.with_name(args.out.stem + "_frame.png"))
-        fps = seq["fps"]
-        print(f"[sequence] {seq['objects']} objects, {seq['cubature_points']} cubature points, {seq['splats']} object "
-              f"splats, {args.size}^2, {seq['frames']} frames: solver kernels loaded in {seq['kernel_load_s']:.1f} s, "
-              f"simulate {seq['simulate_s']:.1f} s (set-up "
-              f"{seq['simulate_setup_s']:.1f} s), render {device} {seq['render_device_s']:.2f} s (first "
-              f"{seq.get('render_device_first_s', float('nan')):.2f} s), render CPU "
-              f"{seq.get('render_cpu_s', float('nan')):.2f} s", flush=True)  # fmt: skip
-        print("[sequence] FPS: " + ", ".join(f"{k} {v:.2f}" for k, v in fps.items()), flush=True)
-        print("[pose] " + ", ".join(f"{k} {v:.3g}" for k, v in seq["pose_device_vs_cpu"].items()), flush=True)
-        for name, row in seq.get("maps_device_vs_cpu", {}).items():
-            print(f"[maps] {name:<32}" + ", ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
+        report["sequences"] = {}
+        for spec in sequence_specs(args):
+            seq, maps = run_sequence(device, spec, args)
+            report["sequences"][spec.name] = seq
+            save()
+            if "cpu" in maps:
+                _save_frame(maps, args.out.with_name(f"{args.out.stem}_{spec.name}_frame.png"))
+            h, w = spec.image_hw
+            print(f"[{spec.name}] {seq['scenario']}, {seq['objects']} objects, {seq['cubature_points']} cubature points, "
+                  f"{seq['splats']} object splats, {w}x{h}, {seq['frames']} frames, {spec.preset}: solver kernels loaded "
+                  f"in {seq['kernel_load_s']:.1f} s, simulate {seq['simulate_s']:.1f} s (set-up "
+                  f"{seq['simulate_setup_s']:.1f} s), render {device} {seq['render_device_s']:.2f} s (first "
+                  f"{seq.get('render_device_first_s', float('nan')):.2f} s), render CPU "
+                  f"{seq.get('render_cpu_s', float('nan')):.2f} s", flush=True)  # fmt: skip
+            print(f"[{spec.name}] FPS: " + ", ".join(f"{k} {v:.2f}" for k, v in seq["fps"].items()), flush=True)
+            print(f"[{spec.name}] pose: " + ", ".join(f"{k} {v:.3g}" for k, v in seq["pose_device_vs_cpu"].items()),
+                  flush=True)  # fmt: skip
+            for name, row in seq.get("maps_device_vs_cpu", {}).items():
+                print(f"[{spec.name}] {name:<30}" + ", ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
     report["failures"] = failures
     save()
     print(f"wrote {args.out}; failures: {failures or 'none'}")

@@ -21,6 +21,7 @@ def bench_cuda():
     sys.path.insert(0, str(BENCH.parent))
     spec = importlib.util.spec_from_file_location("bench_cuda", BENCH)
     module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_cuda"] = module  # (its dataclasses look their module up there)
     spec.loader.exec_module(module)
     return module
 
@@ -61,12 +62,16 @@ def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
     for row in report["rasterizers"]:
         assert row["index_equal_fraction"] == 1.0 and row["rgb_max_abs_diff"] == 0.0
         assert row["rgb_cpu_pipeline"] == row["rgb_device_pipeline"] == "bands"
-    seq = report["sequence"]
-    assert seq["objects"] == 3 and seq["frames"] == 6 and seq["cubature_points"] == 3 * 64
-    assert set(seq["fps"]) == {"simulate", "render_device", "simulate_and_render_device", "render_cpu",
-                               "simulate_and_render_cpu"}  # fmt: skip
-    assert all(v > 0 for v in seq["fps"].values())
-    assert all(v == 0 for k, v in seq["pose_device_vs_cpu"].items() if k.endswith("diff") or "_diff_" in k)
-    assert len(seq["maps_device_vs_cpu"]) == 13
-    assert all(row["equal_fraction"] == 1.0 for row in seq["maps_device_vs_cpu"].values())
-    assert (tmp_path / "cuda_frame.png").is_file()
+    assert set(report["sequences"]) == {"issue", "dataset"}
+    for name, seq in report["sequences"].items():
+        assert seq["frames"] == 6 and seq["objects"] == 3
+        assert set(seq["fps"]) == {"simulate", "render_device", "simulate_and_render_device", "render_cpu",
+                                   "simulate_and_render_cpu"}  # fmt: skip
+        assert all(v > 0 for v in seq["fps"].values())
+        assert all(v == 0 for k, v in seq["pose_device_vs_cpu"].items() if k.endswith("diff") or "_diff_" in k)
+        assert len(seq["maps_device_vs_cpu"]) == 13
+        assert all(row["equal_fraction"] == 1.0 for row in seq["maps_device_vs_cpu"].values()), name
+        assert (tmp_path / f"cuda_{name}_frame.png").is_file()
+    issue, dataset = report["sequences"]["issue"], report["sequences"]["dataset"]
+    assert issue["cubature_points"] == 3 * 64 and issue["image_hw_px"] == [128, 128] and issue["preset"] == "standard"
+    assert dataset["image_hw_px"] == [72, 128] and dataset["preset"] == "draft"
