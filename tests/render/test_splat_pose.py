@@ -119,3 +119,12 @@ def test_poser_refuses_mismatched_shapes_by_name() -> None:
         SplatPoser(x0, b[:5], c, rs, n0)
     with pytest.raises(ValueError, match=r"tm must have shape \(3, 8\), got \(3, 4\)"):
         SplatPoser(x0, b, c, rs, n0).pose(tm[:, :4])
+
+
+def test_an_object_without_splats_poses_to_empty_arrays() -> None:
+    z = torch.zeros
+    poser = SplatPoser(z(0, 3, dtype=torch.float64), z(0, 8, dtype=torch.float64), z(0, 8, 3, dtype=torch.float64),
+                       z(0, 3, 3, dtype=torch.float64), np.zeros((0, 3)))  # fmt: skip
+    x, scales, quats, normals = poser.pose(np.zeros((3, 8)))
+    assert x.shape == scales.shape == normals.shape == (0, 3) and quats.shape == (0, 4)
+    assert normals.dtype == np.float32
