@@ -392,7 +392,8 @@ def main() -> None:
                   f"{device} {r['labels_device_ms']:.1f} ms; RGB CPU ({r['rgb_cpu_pipeline']}) {r['rgb_cpu_ms']:.1f} "
                   f"ms, {device} ({r['rgb_device_pipeline']}) {r['rgb_device_ms']:.1f} ms; index equal "
                   f"{r['index_equal_fraction']:.6f}, depth diff {r['depth_max_abs_diff_m_where_index_equal']:.2e} m, "
-                  f"RGB max diff {r['rgb_max_abs_diff']:.2e} (mean {r['rgb_mean_abs_diff']:.2e})", flush=True)  # fmt: skip
+                  f"RGB max diff {r['rgb_max_abs_diff']:.2e} (mean {r['rgb_mean_abs_diff']:.2e})",
+                  flush=True)  # fmt: skip
         print(f"[raster] ({time.perf_counter() - t:.0f} s)", flush=True)
     if "sequence" not in args.skip:
         report["sequences"] = {}
@@ -403,9 +404,9 @@ def main() -> None:
             if "cpu" in maps:
                 _save_frame(maps, args.out.with_name(f"{args.out.stem}_{spec.name}_frame.png"))
             h, w = spec.image_hw
-            print(f"[{spec.name}] {seq['scenario']}, {seq['objects']} objects, {seq['cubature_points']} cubature points, "
-                  f"{seq['splats']} object splats, {w}x{h}, {seq['frames']} frames, {spec.preset}: solver kernels loaded "
-                  f"in {seq['kernel_load_s']:.1f} s, simulate {seq['simulate_s']:.1f} s (set-up "
+            print(f"[{spec.name}] {seq['scenario']}, {seq['objects']} objects, {seq['cubature_points']} cubature "
+                  f"points, {seq['splats']} object splats, {w}x{h}, {seq['frames']} frames, {spec.preset}: solver "
+                  f"kernels loaded in {seq['kernel_load_s']:.1f} s, simulate {seq['simulate_s']:.1f} s (set-up "
                   f"{seq['simulate_setup_s']:.1f} s), render {device} {seq['render_device_s']:.2f} s (first "
                   f"{seq.get('render_device_first_s', float('nan')):.2f} s), render CPU "
                   f"{seq.get('render_cpu_s', float('nan')):.2f} s", flush=True)  # fmt: skip

@@ -112,8 +112,8 @@ class SplatPoser:
                  device: str = "cpu") -> None:  # fmt: skip
         n = x0.shape[0]
         if b.shape[0] != n or c.shape[:2] != b.shape or c.shape[2] != 3 or rs.shape != (n, 3, 3) or n0.shape != (n, 3):
-            raise ValueError(f"SplatPoser: need x0 (n, 3), b (n, 4H), c (n, 4H, 3), rs (n, 3, 3), n0 (n, 3); got "
-                             f"{tuple(x0.shape)}, {tuple(b.shape)}, {tuple(c.shape)}, {tuple(rs.shape)}, {n0.shape}")  # fmt: skip
+            shapes = ", ".join(str(tuple(a.shape)) for a in (x0, b, c, rs, n0))
+            raise ValueError(f"SplatPoser: need x0 (n, 3), b (n, 4H), c (n, 4H, 3), rs (n, 3, 3), n0 (n, 3); got {shapes}")
         wp.init()
         self.device = device
         self.num_splats, self.width = n, int(b.shape[1])
