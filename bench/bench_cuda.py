@@ -55,16 +55,13 @@ from data_gen.pipeline import build_objects, get_scene_layout, render_sequence, 
 from data_gen.render.labels import LabelRasterizer  # noqa: E402
 from data_gen.render.rgb import RgbRasterizer  # noqa: E402
 from data_gen.scenario import sample_scenario  # noqa: E402
+from data_gen.sim import KERNEL_MODULES  # noqa: E402
 from data_gen.sim.contact import PairFinder  # noqa: E402
 from data_gen.sim.presets import load_preset  # noqa: E402
 from data_gen.sim.threads import torch_threads  # noqa: E402
 from newtphys import schema  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-SIM_KERNEL_MODULES = ("data_gen.sim.static_scene", "data_gen.sim.contact", "data_gen.sim.energy.contact_kernels",
-                      "data_gen.sim.energy.elastic_kernel", "data_gen.sim.fused_newton")  # fmt: skip
-"""The solver's warp modules: loaded (compiled, on a machine with an empty kernel cache) before the simulation is
-timed, so that the one-time compilation is reported apart (``kernel_load_s``), not as simulation time."""
 WIDTH_RTOL = 1e-12
 """Relative difference of the GPU's broad-phase cell width from the CPU's that is reported, not failed (see
 :func:`_grid_differences`)."""
@@ -249,7 +246,7 @@ def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> t
     layout = get_scene_layout(scenario.scene)
     objects = build_objects(scenario, settings["cpu"])
     t0 = time.perf_counter()
-    for name in SIM_KERNEL_MODULES:  # the solver's kernels run on the CPU
+    for name in KERNEL_MODULES:  # the solver's kernels run on the CPU
         wp.load_module(importlib.import_module(name), device="cpu")
     kernel_load_s = time.perf_counter() - t0
     t0 = time.perf_counter()

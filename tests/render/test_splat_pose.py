@@ -82,13 +82,18 @@ def test_rigid_motion_rotates_each_splat_and_keeps_its_scales() -> None:
     np.testing.assert_allclose(normals, n0 @ rotation.T, atol=1e-7)
 
 
+def _two_axis_aligned_splats() -> tuple[torch.Tensor, ...]:
+    """Two splats at the origin of a one-handle object, scales 1, 2, 3 mm along x, y, z: (x0, b, c, rs)."""
+    x0 = torch.zeros(2, 3, dtype=torch.float64)
+    w, grad = torch.ones(2, 1, dtype=torch.float64), torch.zeros(2, 1, 3, dtype=torch.float64)
+    rs = torch.as_tensor(np.stack([np.diag([1e-3, 2e-3, 3e-3])] * 2))
+    return x0, affine_basis(x0, w), deformation_basis(x0, w, grad), rs
+
+
 def test_flattened_splat_keeps_a_minimum_scale_and_a_collapsed_normal_keeps_its_direction() -> None:
     """F projecting onto the x-y plane: the z scale is clamped to MIN_SCALE_M; a normal in the plane (whose image
     under cof(F) vanishes) keeps its rest direction."""
-    x0 = torch.zeros(2, 3, dtype=torch.float64)
-    w, grad = torch.ones(2, 1, dtype=torch.float64), torch.zeros(2, 1, 3, dtype=torch.float64)
-    b, c = affine_basis(x0, w), deformation_basis(x0, w, grad)
-    rs = torch.as_tensor(np.stack([np.diag([1e-3, 2e-3, 3e-3])] * 2))
+    x0, b, c, rs = _two_axis_aligned_splats()
     n0 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     tm = torch.zeros(3, 4, dtype=torch.float64)
     tm[2, 2] = -1.0  # F = diag(1, 1, 0)
@@ -100,10 +105,7 @@ def test_flattened_splat_keeps_a_minimum_scale_and_a_collapsed_normal_keeps_its_
 def test_normals_follow_an_inverting_deformation() -> None:
     """F = diag(1, 1, -1) (a mirror, det F < 0, as a crushed soft object can briefly reach): F^-T n0 flips the z
     normal and keeps the in-plane one; the scales are the rest scales."""
-    x0 = torch.zeros(2, 3, dtype=torch.float64)
-    w, grad = torch.ones(2, 1, dtype=torch.float64), torch.zeros(2, 1, 3, dtype=torch.float64)
-    b, c = affine_basis(x0, w), deformation_basis(x0, w, grad)
-    rs = torch.as_tensor(np.stack([np.diag([1e-3, 2e-3, 3e-3])] * 2))
+    x0, b, c, rs = _two_axis_aligned_splats()
     n0 = np.array([[0.0, 0.0, 1.0], [0.6, 0.8, 0.0]])
     tm = torch.zeros(3, 4, dtype=torch.float64)
     tm[2, 2] = -2.0  # F = diag(1, 1, -1)

@@ -12,13 +12,8 @@ import importlib
 import pytest
 import warp as wp
 
-SIM_KERNEL_MODULES = (
-    "data_gen.sim.static_scene",
-    "data_gen.sim.contact",
-    "data_gen.sim.energy.contact_kernels",
-    "data_gen.sim.energy.elastic_kernel",
-    "data_gen.sim.fused_newton",
-)
+from data_gen.sim import KERNEL_MODULES
+
 ARCH = 90
 
 
@@ -29,7 +24,7 @@ def _nvrtc_archs() -> list[int]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", SIM_KERNEL_MODULES)
+@pytest.mark.parametrize("name", KERNEL_MODULES)
 def test_sim_kernels_compile_to_ptx_for_sm90(name, tmp_path):
     archs = _nvrtc_archs()
     if ARCH not in archs:
