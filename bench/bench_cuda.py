@@ -66,6 +66,10 @@ WIDTH_RTOL = 1e-12
 """Relative difference of the GPU's broad-phase cell width from the CPU's that is reported, not failed (see
 :func:`_grid_differences`)."""
 
+POSE_TOLERANCE = {"centre_max_abs_diff_m": 1e-9, "covariance_max_rel_diff": 1e-9, "normal_max_abs_diff": 1e-5}
+"""Largest differences of the device's splat poses from the CPU's that pass (float64 rounding gives ~1e-15; the
+normals are float32): a sequence whose poses differ more is a failure (:func:`_compare_poses`)."""
+
 
 def _sync(device: str) -> None:
     wp.synchronize_device(device)
@@ -268,7 +272,7 @@ def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> t
             _sync(dev)
             t1 = time.perf_counter()
             with torch_threads(1):  # as generate_sequence renders
-                skinned = skinned_surfaces(objects, result, dev)
+                skinned = skinned_surfaces(objects, result, dev, settings[key].num_threads)
                 maps[key], _, _ = render_sequence(scenario, objects, layout, result, settings[key], skinned)
             _sync(dev)
             times.append(time.perf_counter() - t1)
@@ -284,7 +288,7 @@ def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> t
         with torch_threads(1):
             profile.enable()
             render_sequence(scenario, objects, layout, result, settings["device"],
-                            skinned_surfaces(objects, result, device))  # fmt: skip
+                            skinned_surfaces(objects, result, device, settings["device"].num_threads))  # fmt: skip
             profile.disable()
         text = io.StringIO()
         pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(30)
@@ -410,6 +414,8 @@ def main() -> None:
             print(f"[{spec.name}] FPS: " + ", ".join(f"{k} {v:.2f}" for k, v in seq["fps"].items()), flush=True)
             print(f"[{spec.name}] pose: " + ", ".join(f"{k} {v:.3g}" for k, v in seq["pose_device_vs_cpu"].items()),
                   flush=True)  # fmt: skip
+            if any(seq["pose_device_vs_cpu"][k] > tol for k, tol in POSE_TOLERANCE.items()):
+                failures.append(f"{spec.name} poses")
             for name, row in seq.get("maps_device_vs_cpu", {}).items():
                 print(f"[{spec.name}] {name:<30}" + ", ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
     report["failures"] = failures

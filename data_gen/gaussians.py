@@ -142,6 +142,21 @@ class Gaussians:
     def _set_field(self, name: str, value: object) -> None:
         object.__setattr__(self, name, value)  # the dataclass is frozen; only __post_init__ normalises
 
+    def _derived(self, rows: ArrayLike | slice = slice(None), **changes: object) -> Gaussians:
+        """These Gaussians' ``rows`` with fields replaced by ``changes``, without validating again: every field
+        not in ``changes`` was checked when this set was built, and a subset of checked rows is checked (a
+        render derives several sets per frame from 10^6 splats). ``changes`` must be checked by the caller. The
+        cached unit rotations are carried over."""
+        g = object.__new__(Gaussians)
+        for f in dataclasses.fields(Gaussians):
+            value = changes[f.name] if f.name in changes else getattr(self, f.name)
+            if f.name not in changes and value is not None:
+                value = value[rows]
+            object.__setattr__(g, f.name, value)
+        if "unit_rotations_wxyz" in self.__dict__ and "rotations_wxyz" not in changes:
+            g.__dict__["unit_rotations_wxyz"] = self.__dict__["unit_rotations_wxyz"][rows]
+        return g
+
     def __len__(self) -> int:
         return int(self.means_m.shape[0])
 
@@ -229,8 +244,15 @@ class Gaussians:
         sel = np.asarray(selection)
         if sel.dtype == bool and sel.shape != (len(self),):
             raise ValueError(f"boolean selection must have shape ({len(self)},), got {sel.shape}")
-        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        return Gaussians(**{k: (None if v is None else v[sel]) for k, v in fields.items()})
+        if sel.dtype != bool and not np.issubdtype(sel.dtype, np.integer) and sel.size:
+            raise ValueError(f"selection must be a boolean mask or integer indices, got dtype {sel.dtype}")
+        return self._derived(sel.astype(np.intp) if sel.dtype != bool else sel)
+
+    def with_colors(self, colors_rgb: ArrayLike) -> Gaussians:
+        """The same splats with other colours (N, 3) in [0, 1] (checked; nothing else is checked again)."""
+        colors = _as_float_array("colors_rgb", colors_rgb, (3,), len(self))
+        _check_range("colors_rgb", colors, 0.0, 1.0)
+        return self._derived(colors_rgb=colors)
 
 
 def concatenate(items: Sequence[Gaussians]) -> Gaussians:

@@ -51,6 +51,7 @@ from data_gen.gaussians import Gaussians
 from data_gen.object_boxes import oriented_box
 from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent_m
+from data_gen.render.projection import run_in_threads
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.render.splat_pose import SplatPoser
 from data_gen.scenario import Scenario
@@ -289,16 +290,20 @@ class SkinnedSurface:
     covariance (F R S)(F R S)^T is stored back as rotation + scales through the
     SVD of F R S, so it stays a valid Gaussian by construction: one warp launch
     per frame on ``device`` (:class:`~data_gen.render.splat_pose.SplatPoser`).
+
+    On a CUDA ``device`` the bases are evaluated and kept there (torch, float64: the skinning MLP with its
+    Jacobian at 10^5 splats is seconds of one CPU thread), and only the posed splats come back to the host.
     """
 
-    def __init__(self, surface: Gaussians, track, device: str = "cpu") -> None:
-        x0 = torch.as_tensor(surface.means_m, dtype=torch.float64)
-        w, g = track.basis.evaluate(x0)
+    def __init__(self, surface: Gaussians, track, device: str = "cpu", num_threads: int = 1) -> None:
+        on = torch_device_of(device)
+        x0 = torch.as_tensor(surface.means_m, dtype=torch.float64).to(on)
+        w, g = track.basis.evaluate(x0, num_threads=num_threads)
         self.x0 = x0
         self.b = affine_basis(x0, w.to(torch.float64))
         self.c = deformation_basis(x0, w.to(torch.float64), g.to(torch.float64))
-        rot = torch.as_tensor(quat_to_matrix(surface.rotations_wxyz.astype(np.float64)))
-        self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64)[:, None, :]
+        rot = torch.as_tensor(quat_to_matrix(surface.rotations_wxyz.astype(np.float64))).to(on)
+        self.rs = rot * torch.as_tensor(surface.scales_m, dtype=torch.float64).to(on)[:, None, :]
         self.n0 = surface.surface_normals()
         self.track = track
         self.device = device
@@ -310,7 +315,7 @@ class SkinnedSurface:
 
     def means_at(self, frame: int) -> np.ndarray:
         """World centres (n, 3) m at ``frame`` (no covariance: cheap)."""
-        return (self.x0 + displacement_from_tmat(self.b, self.tmat(frame))).numpy()
+        return (self.x0 + displacement_from_tmat(self.b, self.tmat(frame).to(self.x0.device))).cpu().numpy()
 
     def at(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World centres (n, 3) m, scales (n, 3) m and rotations (n, 4) wxyz at ``frame``."""
@@ -322,6 +327,14 @@ class SkinnedSurface:
         if self._poser is None:
             self._poser = SplatPoser(self.x0, self.b, self.c, self.rs, self.n0, self.device)
         return self._poser.pose(self.tmat(frame))
+
+
+def torch_device_of(device: str) -> torch.device:
+    """The torch device holding a warp ``device``'s data ("cpu", "cuda", "cuda:1"); the CPU when torch has no
+    CUDA (warp's kernels then still run there, on inputs copied up)."""
+    if device.startswith("cuda") and torch.cuda.is_available():
+        return torch.device(device)
+    return torch.device("cpu")
 
 
 def scene_lighting(layout: SceneLayout, settings: RenderSettings, objects: list[SceneObject],
@@ -345,11 +358,13 @@ def scene_lighting(layout: SceneLayout, settings: RenderSettings, objects: list[
     return lighting
 
 
-def skinned_surfaces(objects: list[SceneObject], result: SimulationResult, device: str = "cpu") -> list[SkinnedSurface]:
+def skinned_surfaces(objects: list[SceneObject], result: SimulationResult, device: str = "cpu",
+                     num_threads: int = 1) -> list[SkinnedSurface]:  # fmt: skip
     """Every object's :class:`SkinnedSurface` (its skinning basis evaluated at every surface splat, once per
-    sequence: the renderer and the world state share them)."""
+    sequence: the renderer and the world state share them), on ``num_threads`` CPU threads (the same bytes for
+    any count)."""
     tracks = {t.object_id: t for t in result.objects}
-    return [SkinnedSurface(o.surface, tracks[o.object_id], device) for o in objects]
+    return [SkinnedSurface(o.surface, tracks[o.object_id], device, num_threads) for o in objects]
 
 
 def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, result: SimulationResult,
@@ -372,7 +387,7 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     semantic = np.concatenate([np.zeros(n_scene, np.uint16)] + [np.full(s, o.semantic_id, np.uint16) for o, s in zip(objects, sizes)])
     tracks = {t.object_id: t for t in result.objects}
     if skinned is None:
-        skinned = skinned_surfaces(objects, result, settings.device)
+        skinned = skinned_surfaces(objects, result, settings.device, settings.num_threads)
     # Nearest cubature point of every surface Gaussian, in the rest frame (fixed for the sequence).
     nearest = [cKDTree(tracks[o.object_id].points_rest_m).query(o.surface.means_m.astype(np.float64))[1] for o in objects]
     gravity = np.asarray(scenario.gravity_m_s2, np.float64)
@@ -399,13 +414,18 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     rgb_r = RgbRasterizer(h, w, settings.device, settings.num_threads)
     lab_r = LabelRasterizer(h, w, settings.device, settings.num_threads, depth_mode="surface")
     index_all = np.zeros((t_count, h, w), np.int64)
+    pose_workers = settings.num_threads if settings.device == "cpu" else 1
     object_ids = [o.object_id for o in objects]
     for t in range(t_count):  # loop over frames
         contact = np.zeros(n_all, bool)
         stress = np.zeros(n_all, np.float32)
-        for k, o in enumerate(objects):  # loop over objects
+        def pose_object(k: int, t: int = t) -> None:  # one warp launch: objects are posed on parallel threads
             sl = slice(offsets[k], offsets[k + 1])
             positions[t, sl], scales[sl], rotations[sl], normals[sl] = skinned[k].pose(t)
+
+        run_in_threads(pose_object, n_obj, pose_workers)
+        for k, o in enumerate(objects):  # loop over objects
+            sl = slice(offsets[k], offsets[k + 1])
             tr = tracks[o.object_id]
             contact[sl] = tr.contact_partner[t][nearest[k]] >= 0
             stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]
@@ -536,10 +556,11 @@ def generate_sequence(scenario: Scenario, preset: QualityPreset, settings: Rende
     t1 = time.perf_counter()
     result = simulate(scenario, objects, layout, preset, skinning_cache_dir, training_threads=settings.num_threads)
     t2 = time.perf_counter()
-    with torch_threads(1):  # the per-frame products are small: one thread beats a contended pool; and the bases'
-        # evaluation at every splat, though large, stays on one thread: torch's products on 3 threads differ from 1 or
-        # 2 in the last bit (seen on this machine), and a sequence must not depend on render.num_threads
-        skinned = skinned_surfaces(objects, result, settings.device)
+    with torch_threads(1):  # the per-frame products are small: one thread beats a contended pool; and torch's products
+        # of 10^5 rows on 3 threads differ from 1 or 2 in the last bit (seen on this machine): the bases' evaluation at
+        # every splat runs fixed chunks of rows, each on one torch thread, render.num_threads of them at a time (a
+        # sequence must not depend on render.num_threads)
+        skinned = skinned_surfaces(objects, result, settings.device, settings.num_threads)
         maps, K, w2c = render_sequence(scenario, objects, layout, result, settings, skinned)
     t3 = time.perf_counter()
     visible = [int((maps[schema.INSTANCES][-1] == o.object_id).sum()) >= settings.min_visible_pixels for o in objects]

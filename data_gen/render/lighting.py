@@ -151,9 +151,8 @@ def _fill_uncovered(visibility: NDArray[np.float32], uncovered: NDArray[np.bool_
 
 
 def _with_colors(gaussians: Gaussians, colors: NDArray[np.float32]) -> Gaussians:
-    """The same splats with other colours, for the RGB rasterizer (normals and part ids are not needed there)."""
-    return Gaussians(means_m=gaussians.means_m, scales_m=gaussians.scales_m, covariances_m2=gaussians.covariances_m2,
-                     rotations_wxyz=gaussians.rotations_wxyz, colors_rgb=colors, opacities=gaussians.opacities)
+    """The same splats with other colours, for the RGB rasterizer."""
+    return gaussians.with_colors(colors)
 
 
 def _largest_extent_m(gaussians: Gaussians, mask: NDArray[np.bool_]) -> float:

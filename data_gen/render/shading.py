@@ -55,7 +55,11 @@ def facing_normals(
     flip = np.asarray(two_sided, bool)
     if flip.shape != (len(facing),):
         raise ValueError(f"two_sided must have shape ({len(facing)},), got {flip.shape}")
-    return np.where(flip[:, None], camera_facing(facing, centres_m, camera_centre_m), facing)
+    if not flip.any():
+        return facing
+    facing = facing.copy()
+    facing[flip] = camera_facing(facing[flip], np.asarray(centres_m)[flip], camera_centre_m)
+    return facing
 
 
 def shade_parts(

@@ -118,9 +118,16 @@ class SplatPoser:
         self.device = device
         self.num_splats, self.width = n, int(b.shape[1])
 
-        def up(values, dtype) -> wp.array:
-            return wp.array(np.ascontiguousarray(np.asarray(values, dtype=np.float64)), dtype=dtype, device=device)
+        target = wp.get_device(device)
 
+        def up(values, dtype) -> wp.array:
+            if isinstance(values, torch.Tensor) and values.dtype == torch.float64 and values.is_contiguous() and (
+                    wp.device_from_torch(values.device) == target):  # fmt: skip
+                return wp.from_torch(values, dtype=dtype)  # shared: the caller keeps the tensor alive
+            host = values.cpu().numpy() if isinstance(values, torch.Tensor) else values
+            return wp.array(np.ascontiguousarray(np.asarray(host, dtype=np.float64)), dtype=dtype, device=device)
+
+        self._tensors = (x0, b, c, rs)  # what the shared inputs view
         self._inputs = [up(x0, wp.vec3d), up(b, wp.float64), up(c, wp.float64), up(rs, wp.mat33d), up(n0, wp.vec3d)]
         self._tm = wp.zeros((3, self.width), dtype=wp.float64, device=device)
         self._tm_host = np.zeros((3, self.width))

@@ -63,8 +63,8 @@ def deformation_basis(points_rest: torch.Tensor, weights: torch.Tensor, grads: t
     """C_i with F_i = I + Tm C_i, shape (n, 4H, 3)."""
     n, num_h = weights.shape
     xb = homogeneous(points_rest)
-    eye = torch.zeros(4, 3, dtype=points_rest.dtype)
-    eye[:3, :3] = torch.eye(3, dtype=points_rest.dtype)
+    eye = torch.zeros(4, 3, dtype=points_rest.dtype, device=points_rest.device)
+    eye[:3, :3] = torch.eye(3, dtype=points_rest.dtype, device=points_rest.device)
     c = weights[:, :, None, None] * eye + xb[:, None, :, None] * grads[:, :, None, :]
     return c.reshape(n, 4 * num_h, 3)
 
@@ -125,7 +125,7 @@ def displacement_from_tmat(b: torch.Tensor, tm: torch.Tensor) -> torch.Tensor:
 
 def deformation_from_tmat(c: torch.Tensor, tm: torch.Tensor) -> torch.Tensor:
     """F_i = I + Tm C_i, (n,3,3)."""
-    return torch.eye(3, dtype=tm.dtype) + tm @ c
+    return torch.eye(3, dtype=tm.dtype, device=tm.device) + tm @ c
 
 
 def scatter_point_gradient(b: torch.Tensor, grad_x: torch.Tensor) -> torch.Tensor:

@@ -91,7 +91,7 @@ def test_skinned_surface_normals_follow_a_bending_deformation() -> None:
     b = 3.0
 
     class Basis:
-        def evaluate(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        def evaluate(self, x: torch.Tensor, num_threads: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
             w = torch.stack([torch.ones_like(x[:, 0]), x[:, 0]], 1)
             grad = torch.zeros(len(x), 2, 3, dtype=x.dtype)
             grad[:, 1, 0] = 1.0

@@ -60,6 +60,43 @@ def test_subset_keeps_rows() -> None:
     np.testing.assert_allclose(s.covariances(), g.covariances()[[0, 2]])
 
 
+def test_derived_sets_hold_the_rows_and_colours_asked_for_and_check_the_new_colours() -> None:
+    """A subset or a recoloured set is built without validating the checked fields again: it must hold exactly the
+    fields a fresh, validated set of those rows would, and its cached unit rotations must be those rows' ones."""
+    rng = np.random.default_rng(4)
+    n = 7
+    g = Gaussians(means_m=rng.normal(size=(n, 3)), scales_m=rng.uniform(0.1, 1, (n, 3)),
+                  rotations_wxyz=rng.normal(size=(n, 4)) * 3.0, colors_rgb=rng.uniform(0, 1, (n, 3)),
+                  opacities=rng.uniform(0, 1, n), part_ids=np.arange(n), normals=rng.normal(size=(n, 3)))  # fmt: skip
+    unit = g.unit_rotations_wxyz  # cached now: a derived set carries its rows
+    rows = np.array([5, 1, 1, 3])
+    for sel in (rows, rows.astype(np.int32), np.isin(np.arange(n), rows)):
+        s = g.subset(sel)
+        picked = np.arange(n)[sel]
+        fresh = Gaussians(means_m=g.means_m[picked], scales_m=g.scales_m[picked], rotations_wxyz=g.rotations_wxyz[picked],
+                          colors_rgb=g.colors_rgb[picked], opacities=g.opacities[picked], part_ids=g.part_ids[picked],
+                          normals=g.normals[picked])  # fmt: skip
+        for name in ("means_m", "scales_m", "rotations_wxyz", "colors_rgb", "opacities", "part_ids", "normals"):
+            np.testing.assert_array_equal(getattr(s, name), getattr(fresh, name), err_msg=name)
+        np.testing.assert_array_equal(s.unit_rotations_wxyz, unit[picked])
+        np.testing.assert_array_equal(s.unit_rotations_wxyz, fresh.unit_rotations_wxyz)
+    new_colors, old_colors = rng.uniform(0, 1, (n, 3)), g.colors_rgb.copy()
+    r = g.with_colors(new_colors)
+    np.testing.assert_array_equal(r.colors_rgb, new_colors.astype(np.float32))
+    np.testing.assert_array_equal(r.means_m, g.means_m)
+    np.testing.assert_array_equal(g.colors_rgb, old_colors)  # the source set is unchanged
+    assert r.colors_rgb.dtype == np.float32 and r.colors_rgb.flags.c_contiguous
+    bad = new_colors.copy()
+    bad[2, 1] = 1.5
+    with pytest.raises(ValueError, match=r"colors_rgb\[2\].*outside the allowed range"):
+        g.with_colors(bad)
+    with pytest.raises(ValueError, match=r"colors_rgb has 6 rows but means_m has 7"):
+        g.with_colors(new_colors[:6])
+    with pytest.raises(ValueError, match=r"boolean mask or integer indices, got dtype float64"):
+        g.subset(np.array([0.0, 1.0]))
+    assert len(g.subset(np.array([], dtype=int))) == 0
+
+
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [

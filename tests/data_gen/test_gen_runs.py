@@ -146,3 +146,16 @@ def test_camera_paths_see_past_walls() -> None:
     _, w2c = camera_matrices(first)
     eye = -w2c[0, :3, :3].T @ w2c[0, :3, 3]
     assert first.scene == "room_corner" and eye[1] > -1.0  # in front of the wall at y = -1.05 m
+
+
+def test_a_cuda_render_device_without_torch_cuda_keeps_the_bases_on_the_cpu(monkeypatch) -> None:
+    import torch
+
+    from data_gen.pipeline import torch_device_of
+
+    assert torch_device_of("cpu") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert torch_device_of("cuda") == torch.device("cpu")
+    assert torch_device_of("cuda:1") == torch.device("cpu")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert torch_device_of("cuda:1") == torch.device("cuda:1")

@@ -14,7 +14,7 @@ from data_gen.gaussians import Gaussians, concatenate
 from data_gen.render.labels import LabelRasterizer
 from data_gen.render.lighting import SceneLighting
 from data_gen.render.rgb import RgbRasterizer
-from data_gen.render.shading import shade
+from data_gen.render.shading import camera_facing, facing_normals, shade
 from data_gen.render.shadow_map import fit_light_view
 from data_gen.scene_light import SceneLight
 from newtphys.geometry import intrinsics_from_fov, look_at
@@ -160,6 +160,27 @@ def test_two_sided_normals_face_the_camera_and_prelit_splats_keep_their_colour()
     vis = np.array([1.0, 0.0, 0.5])
     out = shade(albedo, np.tile([0.0, 0.0, 1.0], (3, 1)), centres, cam, light, vis, prelit=[True, True, True])
     np.testing.assert_allclose(out[:, 0], [0.5, 0.5 * 0.4 / 1.0, 0.5 * 0.7 / 1.0], atol=1e-7)
+
+
+def test_only_two_sided_normals_turn_to_the_camera() -> None:
+    """facing_normals turns exactly the two-sided normals that point away from the camera, leaves every other row
+    as given (the camera-facing test runs only on the flagged rows), and leaves its inputs unchanged."""
+    rng = np.random.default_rng(5)
+    normals = rng.normal(size=(200, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    centres = rng.uniform(-1.0, 1.0, (200, 3))
+    cam = np.array([0.3, -0.2, 4.0])
+    two_sided = rng.uniform(size=200) < 0.3
+    kept = normals.copy()
+    out = facing_normals(normals, centres, cam, two_sided)
+    away = np.einsum("ij,ij->i", normals, cam - centres) < 0.0
+    expected = np.where((two_sided & away)[:, None], -normals, normals)
+    np.testing.assert_array_equal(out, expected)
+    assert (two_sided & away).sum() > 10 and (~two_sided & away).sum() > 10  # both kinds of rows occur
+    np.testing.assert_array_equal(normals, kept)
+    np.testing.assert_array_equal(facing_normals(normals, centres, cam, np.zeros(200, bool)), normals)
+    np.testing.assert_array_equal(facing_normals(normals, centres, cam, np.ones(200, bool)),
+                                  camera_facing(normals, centres, cam))  # fmt: skip
 
 
 def test_light_view_sees_every_caster_and_lighting_is_deterministic() -> None:

@@ -130,3 +130,39 @@ def test_an_object_without_splats_poses_to_empty_arrays() -> None:
     x, scales, quats, normals = poser.pose(np.zeros((3, 8)))
     assert x.shape == scales.shape == normals.shape == (0, 3) and quats.shape == (0, 4)
     assert normals.dtype == np.float32
+
+
+def test_inputs_shared_from_torch_pose_the_same_as_copied_ones_and_are_not_written() -> None:
+    """Float64 contiguous tensors on the poser's device are viewed, not copied (on a GPU the skinned bases stay
+    there); any other input is copied up. Both give the same bytes, and posing leaves the shared inputs as they
+    were."""
+    x0, b, c, rs, n0, tm = _random_object(500, 3, seed=11)
+    kept = [t.clone() for t in (x0, b, c, rs)]
+    shared = SplatPoser(x0, b, c, rs, n0).pose(tm)
+    copied = SplatPoser(x0.numpy().copy(), b.numpy().copy(), c.numpy().copy(), rs.numpy().copy(),
+                        n0).pose(tm)  # fmt: skip
+    as_float32 = SplatPoser(x0.float(), b, c, rs, n0).pose(tm)  # a float32 tensor is converted, not viewed
+    for a, e in zip(shared, copied):
+        np.testing.assert_array_equal(a, e)
+    np.testing.assert_allclose(as_float32[0], shared[0], rtol=0, atol=1e-8)
+    for t, k in zip((x0, b, c, rs), kept):
+        assert torch.equal(t, k)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA (checked on a lent GPU: docs/gpu_checks.md)")
+def test_bases_evaluated_on_the_gpu_pose_as_on_the_cpu() -> None:
+    from data_gen.sim.skinning import BlendWeights, SkinningBasis, SkinningMLP
+
+    gen = torch.Generator().manual_seed(0)
+    mlp = SkinningMLP(outputs=3, hidden_layers=2, width=16)
+    mlp.reset_parameters(gen)
+    learned = SkinningBasis(4, mlp, torch.zeros(3, dtype=torch.float64), torch.full((3,), 0.1, dtype=torch.float64))
+    blend = SkinningBasis(3, blend=BlendWeights(torch.rand(3, 3, generator=gen, dtype=torch.float64) * 0.1, 0.05,
+                                                torch.eye(3, dtype=torch.float64)))  # fmt: skip
+    x = torch.rand(1_000, 3, generator=gen, dtype=torch.float64) * 0.2 - 0.1
+    for basis in (learned, blend):
+        w_cpu, g_cpu = basis.evaluate(x)
+        w_gpu, g_gpu = basis.evaluate(x.cuda())
+        assert w_gpu.is_cuda and g_gpu.is_cuda
+        torch.testing.assert_close(w_gpu.cpu(), w_cpu, rtol=1e-12, atol=1e-14)
+        torch.testing.assert_close(g_gpu.cpu(), g_cpu, rtol=1e-12, atol=1e-12)

@@ -416,3 +416,21 @@ def test_training_settings_reject_a_validation_fraction_out_of_range() -> None:
             SkinningTrainingSettings(validation_fraction=bad)
     with pytest.raises(ValueError, match="patience=0"):
         SkinningTrainingSettings(patience=0)
+
+
+def test_evaluation_in_chunks_on_threads_matches_one_piece(trained) -> None:
+    """More than EVALUATE_CHUNK_ROWS points are evaluated in chunks, num_threads at a time: the same bytes for any
+    thread count, and the values of one evaluation in one piece (rows are independent), for learned and blend
+    weights."""
+    _, basis, _ = trained
+    x = _beam_points(n=2 * sk.EVALUATE_CHUNK_ROWS + 37, seed=9)
+    for b in (basis, blend_basis(x, 5, seed=1)):
+        whole = b._evaluate(x)
+        chunked = [b.evaluate(x, num_threads=k) for k in (1, 2, 3)]
+        for w, g in chunked[1:]:
+            assert torch.equal(w, chunked[0][0]) and torch.equal(g, chunked[0][1])
+        torch.testing.assert_close(chunked[0][0], whole[0], rtol=1e-13, atol=1e-15)
+        torch.testing.assert_close(chunked[0][1], whole[1], rtol=1e-13, atol=1e-13)
+        assert torch.equal(chunked[0][0][:, 0], torch.ones(len(x), dtype=torch.float64))
+    with pytest.raises(ValueError, match=r"num_threads=0 is out of range"):
+        basis.evaluate(x, num_threads=0)
