@@ -240,13 +240,19 @@ class Gaussians:
         return dataclasses.replace(self, part_ids=part_ids)
 
     def subset(self, selection: ArrayLike) -> Gaussians:
-        """The Gaussians picked by a boolean mask (N,) or an index array."""
+        """The Gaussians picked by a boolean mask (N,) or an index array (a mask of one run of rows gives views of
+        these arrays, e.g. a render's shadow casters: objects after the scene)."""
         sel = np.asarray(selection)
         if sel.dtype == bool and sel.shape != (len(self),):
             raise ValueError(f"boolean selection must have shape ({len(self)},), got {sel.shape}")
         if sel.dtype != bool and not np.issubdtype(sel.dtype, np.integer) and sel.size:
             raise ValueError(f"selection must be a boolean mask or integer indices, got dtype {sel.dtype}")
-        return self._derived(sel.astype(np.intp) if sel.dtype != bool else sel)
+        if sel.dtype != bool:
+            return self._derived(sel.astype(np.intp))
+        picked = np.flatnonzero(sel)
+        if len(picked) and picked[-1] - picked[0] + 1 == len(picked):  # one run of rows: views, no copies
+            return self._derived(slice(int(picked[0]), int(picked[-1]) + 1))
+        return self._derived(picked)
 
     def with_colors(self, colors_rgb: ArrayLike) -> Gaussians:
         """The same splats with other colours (N, 3) in [0, 1] (checked; nothing else is checked again)."""

@@ -95,6 +95,13 @@ def test_derived_sets_hold_the_rows_and_colours_asked_for_and_check_the_new_colo
     with pytest.raises(ValueError, match=r"boolean mask or integer indices, got dtype float64"):
         g.subset(np.array([0.0, 1.0]))
     assert len(g.subset(np.array([], dtype=int))) == 0
+    assert len(g.subset(np.zeros(n, bool))) == 0
+    run = (np.arange(n) >= 2) & (np.arange(n) < 6)  # one run of rows: views of the arrays, the same values
+    view = g.subset(run)
+    assert np.shares_memory(view.means_m, g.means_m) and view.means_m.flags.c_contiguous
+    np.testing.assert_array_equal(view.rotations_wxyz, g.rotations_wxyz[2:6])
+    np.testing.assert_array_equal(view.unit_rotations_wxyz, unit[2:6])
+    assert not np.shares_memory(g.subset(run ^ (np.arange(n) == 3)).means_m, g.means_m)
 
 
 @pytest.mark.parametrize(
