@@ -203,3 +203,42 @@ def test_device_quaternion_rotation_agrees_with_the_rotations_module() -> None:
     wp.launch(_rotations_kernel, dim=len(q), inputs=[wp.array(q.astype(np.float32), dtype=wp.vec4, device="cpu"), out])
     np.testing.assert_allclose(out.numpy(), quat_to_matrix(q), atol=1e-6)  # float32 on the device
     np.testing.assert_allclose(out.numpy()[2], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-6)  # 90 deg about z
+
+
+def test_run_in_threads_keeps_its_threads_calls_each_index_once_and_runs_nested_calls_inline() -> None:
+    """The render's parallel sections share kept pools (no thread started per section): two calls with the same
+    worker count run on the same threads; every index is called exactly once; a call made from a pool thread runs
+    in order on that thread (a pool never waits on itself); one worker runs in order on the caller's thread."""
+    import threading
+
+    from data_gen.render.projection import run_in_threads
+
+    barrier = threading.Barrier(3, timeout=10)  # three calls at once: three distinct pool threads
+
+    def collect(into: list):
+        def fn(i: int) -> None:
+            barrier.wait()
+            into.append((i, threading.get_ident()))
+        return fn
+
+    first: list = []
+    second: list = []
+    run_in_threads(collect(first), 3)
+    run_in_threads(collect(second), 3)
+    assert sorted(i for i, _ in first) == [0, 1, 2] and sorted(i for i, _ in second) == [0, 1, 2]
+    assert len({t for _, t in first}) == 3 and {t for _, t in first} == {t for _, t in second}
+    assert threading.get_ident() not in {t for _, t in first}
+
+    nested: list = []
+
+    def outer(i: int) -> None:
+        run_in_threads(lambda j: nested.append((i, j, threading.get_ident())), 2)
+
+    run_in_threads(outer, 2)
+    assert sorted((i, j) for i, j, _ in nested) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    for i in (0, 1):  # each outer call's inner calls ran in order on its own thread
+        inner = [(j, t) for k, j, t in nested if k == i]
+        assert [j for j, _ in inner] == [0, 1] and len({t for _, t in inner}) == 1
+    order: list = []
+    run_in_threads(lambda i: order.append((i, threading.get_ident())), 4, workers=1)
+    assert order == [(i, threading.get_ident()) for i in range(4)]
