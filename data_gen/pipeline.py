@@ -307,7 +307,9 @@ class SkinnedSurface:
         self.n0 = surface.surface_normals()
         self.track = track
         self.device = device
-        self._poser: SplatPoser | None = None  # built at the first pose (means_at needs none)
+        # built here, on the caller's thread: render_sequence poses objects on parallel threads, and building posers
+        # there (warp's module load and launch recording at once on two threads) crashed a process about 1 in 6
+        self._poser = SplatPoser(self.x0, self.b, self.c, self.rs, self.n0, self.device)
 
     def tmat(self, frame: int) -> torch.Tensor:
         """The handle matrix Tm (3, 4H) at ``frame``."""
@@ -324,8 +326,6 @@ class SkinnedSurface:
     def pose(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`at` plus the unit normals (n, 3) at ``frame``: F^-T n0, renormalised (F = dx/dx0 holds the
         object's rotation and deformation)."""
-        if self._poser is None:
-            self._poser = SplatPoser(self.x0, self.b, self.c, self.rs, self.n0, self.device)
         return self._poser.pose(self.tmat(frame))
 
 
