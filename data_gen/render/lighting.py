@@ -114,8 +114,8 @@ class SceneLighting:
         centre, _ = camera_pose(np.asarray(world_to_camera, np.float64))
         ambient, direct = shade_parts(gaussians.colors_rgb, normals, gaussians.means_m, centre, self.light,
                                       prelit, two_sided)
-        base = rasterizer.render(_with_colors(gaussians, ambient), K, world_to_camera, background_rgb)[0]
-        key = rasterizer.render(_with_colors(gaussians, direct), K, world_to_camera, (0.0, 0.0, 0.0))[0]
+        base, key, _ = rasterizer.render_two(_with_colors(gaussians, ambient), direct, K, world_to_camera,
+                                             background_rgb)  # fmt: skip
         if self._render_shadow_map(gaussians, casters):
             assert self.mapper is not None
             facing = facing_normals(normals, gaussians.means_m, centre, two_sided)

@@ -82,6 +82,7 @@ class CompositeParams:
     alpha_max: float
     alpha_min: float
     t_min: float
+    two_colors: int  # 1: a second colouring is composited with the same weights (RgbRasterizer.render_two)
 
 
 @wp.kernel
@@ -99,12 +100,15 @@ def gather_sorted_kernel(
     q_cut: wp.array(dtype=float),
     opacities: wp.array(dtype=float),
     colors: wp.array(dtype=wp.vec3),
+    colors2: wp.array(dtype=wp.vec3),
+    two_colors: int,
     out_mean_px: wp.array(dtype=wp.vec2),
     out_conic: wp.array(dtype=wp.vec3),
     out_bbox: wp.array(dtype=wp.vec4i),
     out_q_cut: wp.array(dtype=float),
     out_opacity: wp.array(dtype=float),
     out_color: wp.array(dtype=wp.vec3),
+    out_color2: wp.array(dtype=wp.vec3),
 ):
     """Thread per sorted slot: copy the splat data into depth order (contiguous reads later)."""
     k = wp.tid()
@@ -115,6 +119,8 @@ def gather_sorted_kernel(
     out_q_cut[k] = q_cut[i]
     out_opacity[k] = opacities[i]
     out_color[k] = colors[i]
+    if two_colors != 0:
+        out_color2[k] = colors2[i]
 
 
 @wp.func
@@ -136,8 +142,10 @@ def composite_bands_kernel(
     q_cut: wp.array(dtype=float),
     opacity: wp.array(dtype=float),
     color: wp.array(dtype=wp.vec3),
+    color2: wp.array(dtype=wp.vec3),
     params: CompositeParams,
     accum_rgb: wp.array(dtype=wp.vec3),
+    accum_rgb2: wp.array(dtype=wp.vec3),
     transmittance: wp.array(dtype=float),
     tile_open: wp.array(dtype=int),
 ):
@@ -165,6 +173,9 @@ def composite_bands_kernel(
         qc = q_cut[k]
         o = opacity[k]
         c = color[k]
+        c2 = wp.vec3(0.0, 0.0, 0.0)
+        if params.two_colors != 0:
+            c2 = color2[k]
         for y in range(y0, y1 + 1):
             dy = float(y) + 0.5 - m[1]
             row = y * params.width
@@ -185,6 +196,8 @@ def composite_bands_kernel(
                     wp.atomic_sub(tile_open, (y // OPEN_TILE) * params.tiles_x + x // OPEN_TILE, 1)
                     continue
                 accum_rgb[p] = accum_rgb[p] + (t * alpha) * c
+                if params.two_colors != 0:
+                    accum_rgb2[p] = accum_rgb2[p] + (t * alpha) * c2
                 transmittance[p] = t_next
 
 
@@ -263,8 +276,10 @@ def composite_tiles_kernel(
     conic: wp.array(dtype=wp.vec3),
     opacity: wp.array(dtype=float),
     color: wp.array(dtype=wp.vec3),
+    color2: wp.array(dtype=wp.vec3),
     params: CompositeParams,
     accum_rgb: wp.array(dtype=wp.vec3),
+    accum_rgb2: wp.array(dtype=wp.vec3),
     transmittance: wp.array(dtype=float),
 ):
     """Thread per pixel: composite its tile's splats front to back (same rules as the band kernel)."""
@@ -274,6 +289,7 @@ def composite_tiles_kernel(
     tile = (y / BIN_TILE) * params.tiles_x + x / BIN_TILE
     t = float(1.0)  # warp: float() makes t a mutable loop-carried value
     acc = wp.vec3(0.0, 0.0, 0.0)
+    acc2 = wp.vec3(0.0, 0.0, 0.0)
     for i in range(tile_start[tile], tile_end[tile]):
         k = values[i]
         m = mean_px[k]
@@ -288,8 +304,12 @@ def composite_tiles_kernel(
         if t_next < params.t_min:
             break
         acc = acc + (t * alpha) * color[k]
+        if params.two_colors != 0:
+            acc2 = acc2 + (t * alpha) * color2[k]
         t = t_next
     accum_rgb[p] = acc
+    if params.two_colors != 0:
+        accum_rgb2[p] = acc2
     transmittance[p] = t
 
 
@@ -361,12 +381,15 @@ class RgbRasterizer:
         self._reserve_keys(0)
         n_pix = self.height * self.width
         self.accum_rgb = wp.empty(n_pix, dtype=wp.vec3, device=device)
+        self.accum_rgb2 = wp.empty(n_pix, dtype=wp.vec3, device=device)  # a second colouring's (render_two)
         self.transmittance = wp.empty(n_pix, dtype=float, device=device)
         self.tiles_x = -(-self.width // OPEN_TILE)
         self.num_tiles = self.tiles_x * -(-self.height // OPEN_TILE)
         self.tile_open = wp.empty(self.num_tiles, dtype=int, device=device)
         self.rgb = wp.empty(n_pix, dtype=wp.vec3, device=device)
+        self.rgb2 = wp.empty(n_pix, dtype=wp.vec3, device=device)
         self.alpha = wp.empty(n_pix, dtype=float, device=device)
+        self._two_colors = 0
         self.splats = ProjectedSplats(device, int(num_threads))
         self.num_threads = self.splats.num_threads
         self.capacity = -1
@@ -386,6 +409,7 @@ class RgbRasterizer:
         self.s_q_cut = wp.empty(cap, dtype=float, device=d)
         self.s_opacity = wp.empty(cap, dtype=float, device=d)
         self.s_color = wp.empty(cap, dtype=wp.vec3, device=d)
+        self.s_color2 = wp.empty(cap, dtype=wp.vec3, device=d)
         self.tile_counts = wp.empty(cap, dtype=wp.int32, device=d)
         self.tile_offsets = wp.empty(cap, dtype=wp.int32, device=d)
         self.capacity = cap
@@ -407,12 +431,39 @@ class RgbRasterizer:
     ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """(rgb (H, W, 3) float32 in [0, 1], alpha (H, W) float32 = 1 - final transmittance)."""
         bg = _check_background(background_rgb)
+        self._composite(gaussians, K, world_to_camera, None)
+        return self._finish(self.accum_rgb, bg, self.rgb), self._alpha()
+
+    def render_two(
+        self,
+        gaussians: Gaussians,
+        second_colors_rgb: ArrayLike,
+        K: ArrayLike,
+        world_to_camera: ArrayLike,
+        background_rgb: ArrayLike = (0.0, 0.0, 0.0),
+        second_background_rgb: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+        """Two colourings of the same splats in one pass: (rgb of ``gaussians.colors_rgb``, rgb of
+        ``second_colors_rgb`` (N, 3) in [0, 1], alpha), each as :meth:`render` gives it (the same bits: the
+        weights are computed once and applied to both). Lighting's ambient and direct parts are two colourings."""
+        bg, bg2 = _check_background(background_rgb), _check_background(second_background_rgb)
+        second = gaussians.with_colors(second_colors_rgb).colors_rgb  # checked: (N, 3) in [0, 1]
+        self._composite(gaussians, K, world_to_camera, second)
+        first = self._finish(self.accum_rgb, bg, self.rgb)
+        return first, self._finish(self.accum_rgb2, bg2, self.rgb2), self._alpha()
+
+    def _composite(self, gaussians: Gaussians, K: ArrayLike, world_to_camera: ArrayLike,
+                   second_colors: NDArray[np.float32] | None) -> None:  # fmt: skip
+        """Project, sort and composite ``gaussians`` (and a second colouring when given) into the accumulators."""
         camera = Camera.from_matrices(K, world_to_camera, self.height, self.width)
         n = len(gaussians)
         d = self.device
         self._reserve(n)
+        self._two_colors = int(second_colors is not None)
         n_visible = self.splats.project(gaussians, camera, ALPHA_MIN, self.near_m, self.dilation_px2)
         self.accum_rgb.zero_()
+        if self._two_colors:
+            self.accum_rgb2.zero_()
         self.transmittance.fill_(1.0)
         wp.launch(
             init_tile_open_kernel,
@@ -428,6 +479,7 @@ class RgbRasterizer:
             wp.utils.radix_sort_pairs(self.sort_keys, self.sort_values, n)  # stable: ties keep index order
             opacities = to_warp(gaussians.opacities, float, d)
             colors = to_warp(gaussians.colors_rgb, wp.vec3, d)
+            colors2 = colors if second_colors is None else to_warp(second_colors, wp.vec3, d)
             parts = split_range(n_visible, self.num_threads)
 
             def gather(part: int) -> None:  # sorted slots [lo, hi)
@@ -435,10 +487,11 @@ class RgbRasterizer:
                 wp.launch(
                     gather_sorted_kernel,
                     dim=hi - lo,
-                    inputs=[self.sort_values[lo:hi], s.mean_px, s.conic, s.bbox, s.q_cut, opacities, colors],
+                    inputs=[self.sort_values[lo:hi], s.mean_px, s.conic, s.bbox, s.q_cut, opacities, colors, colors2,
+                            self._two_colors],
                     outputs=[self.s_mean_px[lo:hi], self.s_conic[lo:hi], self.s_bbox[lo:hi],
                              self.s_q_cut[lo:hi],
-                             self.s_opacity[lo:hi], self.s_color[lo:hi]],
+                             self.s_opacity[lo:hi], self.s_color[lo:hi], self.s_color2[lo:hi]],
                     device=d,
                 )  # fmt: skip
 
@@ -447,21 +500,23 @@ class RgbRasterizer:
                 self._composite_bands(n_visible)
             else:
                 self._composite_tiles(n_visible)
-        wp.launch(
-            finish_rgb_kernel,
-            dim=self.height * self.width,
-            inputs=[self.accum_rgb, self.transmittance, wp.vec3(*bg.tolist())],
-            outputs=[self.rgb, self.alpha],
-            device=d,
-        )
-        h, w = self.height, self.width
-        return self.rgb.numpy().reshape(h, w, 3).copy(), self.alpha.numpy().reshape(h, w).copy()
+
+    def _finish(self, accum: wp.array, bg: NDArray[np.float32], out: wp.array) -> NDArray[np.float32]:
+        """The image (H, W, 3) of an accumulator with ``bg`` behind the remaining transmittance."""
+        wp.launch(finish_rgb_kernel, dim=self.height * self.width,
+                  inputs=[accum, self.transmittance, wp.vec3(*bg.tolist())], outputs=[out, self.alpha],
+                  device=self.device)  # fmt: skip
+        return out.numpy().reshape(self.height, self.width, 3).copy()
+
+    def _alpha(self) -> NDArray[np.float32]:
+        return self.alpha.numpy().reshape(self.height, self.width).copy()
 
     def _params(self, row_lo: int, row_hi: int, band_rows: int, tiles_x: int) -> CompositeParams:
         params = CompositeParams()
         params.width, params.row_lo, params.row_hi, params.band_rows = self.width, row_lo, row_hi, band_rows
         params.tiles_x = tiles_x
         params.alpha_max, params.alpha_min, params.t_min = ALPHA_MAX, ALPHA_MIN, T_MIN
+        params.two_colors = self._two_colors
         return params
 
     def _composite_tiles(self, count: int) -> None:
@@ -493,8 +548,8 @@ class RgbRasterizer:
             dim=self.height * self.width,
             inputs=[self.tile_values, self.tile_start, self.tile_end, self.s_mean_px, self.s_conic,
                     self.s_opacity,
-                    self.s_color, self._params(0, self.height, self.height, self.bin_tiles_x)],
-            outputs=[self.accum_rgb, self.transmittance],
+                    self.s_color, self.s_color2, self._params(0, self.height, self.height, self.bin_tiles_x)],
+            outputs=[self.accum_rgb, self.accum_rgb2, self.transmittance],
             device=d,
         )  # fmt: skip
 
@@ -515,9 +570,10 @@ class RgbRasterizer:
                     self.s_q_cut,
                     self.s_opacity,
                     self.s_color,
+                    self.s_color2,
                     params,
                 ],
-                outputs=[self.accum_rgb, self.transmittance, self.tile_open],
+                outputs=[self.accum_rgb, self.accum_rgb2, self.transmittance, self.tile_open],
                 device=self.device,
             )
 

@@ -140,3 +140,24 @@ def test_no_gaussians_gives_background(pipeline: str) -> None:
     )
     np.testing.assert_array_equal(rgb, np.broadcast_to(np.float32(BG), (8, 10, 3)))
     np.testing.assert_array_equal(alpha, 0.0)
+
+
+@pytest.mark.parametrize("layout", [dict(num_threads=2), dict(num_threads=1, pipeline="tiles"),
+                                    dict(num_threads=1, rows_per_band=1)])  # fmt: skip
+def test_two_colourings_in_one_pass_are_the_two_renders(layout: dict) -> None:
+    """render_two composites a second colouring with the same weights: each image is bit for bit what a render of
+    that colouring gives (on the band and the tile pipelines), and a plain render after it is unchanged."""
+    g, K, w2c, h, w = _random_scene(400, seed=12)
+    second = np.random.default_rng(13).uniform(0, 1, (len(g), 3))
+    r = RgbRasterizer(h, w, **layout)
+    first, other, alpha = r.render_two(g, second, K, w2c, BG, (0.0, 0.1, 0.0))
+    ref_first, ref_alpha = RgbRasterizer(h, w, **layout).render(g, K, w2c, BG)
+    ref_other, _ = RgbRasterizer(h, w, **layout).render(g.with_colors(second), K, w2c, (0.0, 0.1, 0.0))
+    assert first.tobytes() == ref_first.tobytes() and other.tobytes() == ref_other.tobytes()
+    assert alpha.tobytes() == ref_alpha.tobytes()
+    assert not np.array_equal(first, other)
+    assert r.render(g, K, w2c, BG)[0].tobytes() == ref_first.tobytes()  # the second colouring leaves no trace
+    with pytest.raises(ValueError, match=r"colors_rgb\[0\] .*outside the allowed range"):
+        r.render_two(g, np.full((len(g), 3), 1.5), K, w2c, BG)
+    with pytest.raises(ValueError, match="background_rgb must be 3 values"):
+        r.render_two(g, second, K, w2c, BG, (2.0, 0.0, 0.0))

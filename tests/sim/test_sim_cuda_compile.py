@@ -23,8 +23,13 @@ def _nvrtc_archs() -> list[int]:
     return list(getattr(runtime, "nvrtc_supported_archs", None) or [])
 
 
+RENDER_KERNEL_MODULES = ("data_gen.render.projection", "data_gen.render.rgb", "data_gen.render.labels",
+                         "data_gen.render.splat_pose", "data_gen.render.shadow_map")  # fmt: skip
+"""The renderer's warp modules (a few seconds each to PTX; they ran on an H200 in the sixteenth session)."""
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", KERNEL_MODULES)
+@pytest.mark.parametrize("name", KERNEL_MODULES + RENDER_KERNEL_MODULES)
 def test_sim_kernels_compile_to_ptx_for_sm90(name, tmp_path):
     archs = _nvrtc_archs()
     if ARCH not in archs:
