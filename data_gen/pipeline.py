@@ -448,7 +448,7 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
         weight = mass_of_id[ids.astype(np.int64)][..., None] * gravity  # (H, W, 3) N, world frame
         maps[schema.GRAVITY][t] = geometry.rotate_vectors(w2c[t], weight).astype(np.float32)
         if n_obj:
-            masks = lab_r.render_group_masks(g, K, w2c[t], instance, object_ids)
+            masks = lab_r.render_group_masks(g, K, w2c[t], instance, object_ids, projected=True)  # as rendered above
             maps[schema.AMODAL_INSTANCES][t] = masks
             for k, o in enumerate(objects):
                 maps[schema.AMODAL_MATERIALS][t, k][masks[k]] = o.material_id

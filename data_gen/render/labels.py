@@ -204,6 +204,30 @@ class LabelRasterizer:
 
     def rasterize(self, include: ArrayLike | None = None) -> tuple[NDArray[np.int32], NDArray[np.float32]]:
         """Index (H, W) int32 (-1 = none) and depth (H, W) float32 m (0 = none) of the last projection."""
+        self._resolve_index(include)
+        n, s = self.splats.count, self.splats
+        if self.depth_mode == "surface" and n > 0:
+            wp.launch(
+                label_surface_depth_kernel,
+                dim=self.height * self.width,
+                inputs=[
+                    self.index,
+                    self._rays,
+                    s.depth_m,
+                    s.adj_diag,
+                    s.adj_off,
+                    s.adj_mean,
+                    s.depth_halfwidth_m,
+                ],
+                outputs=[self.depth_m],
+                device=self.device,
+            )
+        shape = (self.height, self.width)
+        return self.index.numpy().reshape(shape).copy(), self.depth_m.numpy().reshape(shape).copy()
+
+    def _resolve_index(self, include: ArrayLike | None) -> None:
+        """The nearest covering splat of every pixel (``self.index``; centre depth in ``self.depth_m``) among the
+        last projection's splats (those ``include`` (n,) bool flags when given)."""
         n = self.splats.count
         use_include = include is not None
         inc = self._no_include
@@ -236,24 +260,6 @@ class LabelRasterizer:
             outputs=[self.index, self.depth_m],
             device=self.device,
         )
-        if self.depth_mode == "surface" and n > 0:
-            wp.launch(
-                label_surface_depth_kernel,
-                dim=self.height * self.width,
-                inputs=[
-                    self.index,
-                    self._rays,
-                    s.depth_m,
-                    s.adj_diag,
-                    s.adj_off,
-                    s.adj_mean,
-                    s.depth_halfwidth_m,
-                ],
-                outputs=[self.depth_m],
-                device=self.device,
-            )
-        shape = (self.height, self.width)
-        return self.index.numpy().reshape(shape).copy(), self.depth_m.numpy().reshape(shape).copy()
 
     def render(
         self, gaussians: Gaussians, K: ArrayLike, world_to_camera: ArrayLike, include: ArrayLike | None = None
@@ -269,18 +275,26 @@ class LabelRasterizer:
         world_to_camera: ArrayLike,
         group_of_gaussian: ArrayLike,
         groups: Sequence[int],
+        projected: bool = False,
     ) -> NDArray[np.bool_]:
-        """Silhouette (G, H, W) of each group rendered alone (amodal masks); projects once.
+        """Silhouette (G, H, W) of each group rendered alone (amodal masks); projects once (not at all with
+        ``projected``: the last :meth:`render` of this rasterizer projected these ``gaussians`` with this camera).
 
         ``group_of_gaussian`` (N,) holds a group id (e.g. object id) per Gaussian.
         """
         gid = np.asarray(group_of_gaussian)
         if gid.shape != (len(gaussians),):
             raise ValueError(f"group_of_gaussian must have shape ({len(gaussians)},), got {gid.shape}")
-        self.project(gaussians, K, world_to_camera)
+        if not projected:
+            self.project(gaussians, K, world_to_camera)
+        elif self.splats.count != len(gaussians):
+            raise ValueError(f"projected=True but the last projection holds {self.splats.count} splats, not "
+                             f"{len(gaussians)}: render these gaussians first")  # fmt: skip
         out = np.zeros((len(groups), self.height, self.width), bool)
+        shape = (self.height, self.width)
         for k, group in enumerate(groups):  # loop over objects
-            out[k] = self.rasterize(gid == group)[0] >= 0
+            self._resolve_index(gid == group)  # (a silhouette needs no surface depth)
+            out[k] = self.index.numpy().reshape(shape) >= 0
         return out
 
 

@@ -145,6 +145,12 @@ def test_group_masks_are_per_object_silhouettes() -> None:
         modal = (index >= 0) & (groups[np.maximum(index, 0)] == obj)
         assert not (modal & ~masks[k]).any()  # the amodal silhouette contains the visible part
     np.testing.assert_array_equal(masks.any(0), index >= 0)
+    # reusing the projection of a render just made (surface depth, as the pipeline renders): the same masks
+    r = LabelRasterizer(h, w, depth_mode="surface")
+    r.render(g, K, w2c)
+    np.testing.assert_array_equal(r.render_group_masks(g, K, w2c, groups, [1, 2, 3], projected=True), masks)
+    with pytest.raises(ValueError, match=r"projected=True but the last projection holds 400 splats, not 200"):
+        r.render_group_masks(g.subset(np.arange(200)), K, w2c, groups[:200], [1], projected=True)
 
 
 def test_gather_labels_any_dtype_and_shape() -> None:
