@@ -458,7 +458,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("splat_deformation_transposed", "data_gen/render/splat_pose.py",
            "f += wp.outer(t, wp.vec3d(c[i, j, 0], c[i, j, 1], c[i, j, 2]))",
            "f += wp.outer(wp.vec3d(c[i, j, 0], c[i, j, 1], c[i, j, 2]), t)"),
-    # killed on a quiet machine; under load MKL's dynamic threading may run the unpinned workers on one thread anyway
+    # killed on a quiet machine; it survived once while CI used both cores (MKL's dynamic threading, presumably)
     Mutant("skinning_chunk_workers_on_pool_threads", "data_gen/sim/skinning.py",
            "with ThreadPoolExecutor(min(num_threads, len(chunks)), initializer=torch.set_num_threads,",
            "with ThreadPoolExecutor(min(num_threads, len(chunks)), initializer=lambda _: None,",
