@@ -159,3 +159,24 @@ def test_a_cuda_render_device_without_torch_cuda_keeps_the_bases_on_the_cpu(monk
     assert torch_device_of("cuda:1") == torch.device("cpu")
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     assert torch_device_of("cuda:1") == torch.device("cuda:1")
+
+
+def test_splat_posers_are_built_on_the_callers_thread(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """render_sequence poses objects on parallel threads; a poser built there (warp's module loaded by two threads
+    at once) crashed about one process in ten. Every poser of a generated sequence must be built on the thread that
+    called the pipeline, and every pose must reuse one."""
+    import threading
+
+    from data_gen import pipeline
+
+    built: list[bool] = []
+    real = pipeline.SplatPoser
+
+    class Recorded(real):  # type: ignore[misc, valid-type]
+        def __init__(self, *args, **kwargs) -> None:
+            built.append(threading.current_thread() is threading.main_thread())
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "SplatPoser", Recorded)
+    generate(tmp_path, ONE + ["render.num_threads=2", "scenario.num_objects=[3,3]"])
+    assert len(built) >= 3 and all(built), built
