@@ -108,13 +108,13 @@ class SceneLighting:
         """
         if self.mapper is None or self.shadow_test == "splat":
             colors = self.colors(gaussians, world_to_camera, casters, prelit, two_sided)
-            lit = _with_colors(gaussians, colors)
+            lit = gaussians.with_colors(colors)
             return rasterizer.render(lit, K, world_to_camera, background_rgb)[0]
         normals = gaussians.surface_normals()
         centre, _ = camera_pose(np.asarray(world_to_camera, np.float64))
         ambient, direct = shade_parts(gaussians.colors_rgb, normals, gaussians.means_m, centre, self.light,
                                       prelit, two_sided)
-        base, key, _ = rasterizer.render_two(_with_colors(gaussians, ambient), direct, K, world_to_camera,
+        base, key, _ = rasterizer.render_two(gaussians.with_colors(ambient), direct, K, world_to_camera,
                                              background_rgb)  # fmt: skip
         if self._render_shadow_map(gaussians, casters):
             assert self.mapper is not None
@@ -148,11 +148,6 @@ def _fill_uncovered(visibility: NDArray[np.float32], uncovered: NDArray[np.bool_
         return visibility
     _, (iy, ix) = ndimage.distance_transform_edt(uncovered, return_indices=True)
     return visibility[iy, ix]
-
-
-def _with_colors(gaussians: Gaussians, colors: NDArray[np.float32]) -> Gaussians:
-    """The same splats with other colours, for the RGB rasterizer."""
-    return gaussians.with_colors(colors)
 
 
 def _largest_extent_m(gaussians: Gaussians, mask: NDArray[np.bool_]) -> float:

@@ -117,7 +117,6 @@ class SplatPoser:
         wp.init()
         self.device = device
         self.num_splats, self.width = n, int(b.shape[1])
-
         target = wp.get_device(device)
 
         def up(values, dtype) -> wp.array:
@@ -130,7 +129,6 @@ class SplatPoser:
         self._tensors = (x0, b, c, rs)  # what the shared inputs view
         self._inputs = [up(x0, wp.vec3d), up(b, wp.float64), up(c, wp.float64), up(rs, wp.mat33d), up(n0, wp.vec3d)]
         self._tm = wp.zeros((3, self.width), dtype=wp.float64, device=device)
-        self._tm_host = np.zeros((3, self.width))
         self._out = [wp.empty(n, dtype=t, device=device) for t in (wp.vec3d, wp.vec3d, wp.vec4d, wp.vec3f)]
         self._launch = wp.launch(_pose_kernel, dim=n, inputs=[*self._inputs, self._tm, *self._out], device=device,
                                  record_cmd=True)  # fmt: skip
