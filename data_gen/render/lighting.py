@@ -25,6 +25,8 @@ own light never came from) and the captured splats are ``prelit``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import warp as wp
 from scipy import ndimage
@@ -65,8 +67,9 @@ class SceneLighting:
         self.view: LightView | None = None
         wp.load_module(shading, device=device)  # here, not first inside a caller's threads
 
-    def fit(self, caster_points_m: ArrayLike, splat_radius_m: float) -> None:
-        """Fit the light view to every position (n, 3) a caster centre takes in the sequence, m."""
+    def fit(self, caster_points_m: ArrayLike | Sequence[ArrayLike], splat_radius_m: float) -> None:
+        """Fit the light view to every position (n, 3) a caster centre takes in the sequence, m (one array, or a
+        sequence of them: :func:`~data_gen.render.shadow_map.fit_light_view`)."""
         if self.mapper is not None:
             self.view = fit_light_view(self.light.direction, caster_points_m, splat_radius_m, self.mapper.size_px)
 

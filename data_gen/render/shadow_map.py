@@ -36,6 +36,7 @@ neighbours).
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,32 +67,51 @@ class LightView:
     size_px: int
 
 
-def fit_light_view(direction: ArrayLike, caster_points_m: ArrayLike, splat_radius_m: float, size_px: int) -> LightView:
-    """A ``size_px`` square light view seeing all ``caster_points_m`` (n, 3) from ``direction`` (towards the light).
+def fit_light_view(direction: ArrayLike, caster_points_m: ArrayLike | Sequence[ArrayLike], splat_radius_m: float,
+                   size_px: int) -> LightView:  # fmt: skip
+    """A ``size_px`` square light view seeing all ``caster_points_m`` from ``direction`` (towards the light).
 
+    ``caster_points_m``: one (n, 3) array, or a sequence of them (e.g. one per object and frame: read in blocks,
+    never joined, so a sequence's 10^7 positions cost no copy; the view is the same as for their concatenation).
     ``splat_radius_m`` (>= 0) widens the fit by the casters' largest splat extent.
     """
     d = np.asarray(direction, np.float64)
     d = d / np.linalg.norm(d)
-    pts = np.asarray(caster_points_m, np.float64).reshape(-1, 3)
     if int(size_px) < 8:
         raise ValueError(f"shadow map size_px must be >= 8, got {size_px}")
-    if len(pts) == 0:
-        pts = np.zeros((1, 3))
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    blocks = list(_point_blocks(caster_points_m))
+    if not blocks:
+        blocks = [np.zeros((1, 3))]
+    lo = np.min([b.min(axis=0) for b in blocks], axis=0)
+    hi = np.max([b.max(axis=0) for b in blocks], axis=0)
     centre = 0.5 * (lo + hi)
     radius = max(float(np.linalg.norm(hi - lo)) * 0.5 + float(splat_radius_m), 1e-3)
     distance = DISTANCE_RADII * radius
     up = (1.0, 0.0, 0.0) if abs(d[2]) > 0.99 else (0.0, 0.0, 1.0)
     w2l = look_at(centre + distance * d, centre, up)
-    p = pts @ w2l[:3, :3].T + w2l[:3, 3]
-    z = p[:, 2]
-    half_x = float(np.max((np.abs(p[:, 0]) + splat_radius_m) / (z - splat_radius_m)))
-    half_y = float(np.max((np.abs(p[:, 1]) + splat_radius_m) / (z - splat_radius_m)))
+    half_x = half_y = -np.inf
+    for b in blocks:  # loop over blocks of points: the largest tangent each way, in the light's frame
+        p = b @ w2l[:3, :3].T + w2l[:3, 3]
+        z = p[:, 2] - splat_radius_m
+        half_x = max(half_x, float(np.max((np.abs(p[:, 0]) + splat_radius_m) / z)))
+        half_y = max(half_y, float(np.max((np.abs(p[:, 1]) + splat_radius_m) / z)))
     half = (1.0 + FIT_MARGIN) * max(half_x, half_y, 1e-6)
     f = 0.5 * size_px / half
     K = np.array([[f, 0.0, 0.5 * size_px], [0.0, f, 0.5 * size_px], [0.0, 0.0, 1.0]])
     return LightView(K, w2l, int(size_px))
+
+
+FIT_BLOCK_ROWS = 1 << 18
+"""Rows :func:`fit_light_view` transforms at a time (per-row arithmetic: the view does not depend on it)."""
+
+
+def _point_blocks(points: ArrayLike | Sequence[ArrayLike]) -> Iterator[NDArray[np.float64]]:
+    """Non-empty float64 (m, 3) blocks of at most ``FIT_BLOCK_ROWS`` rows of one array or a sequence of arrays."""
+    is_one_array = isinstance(points, np.ndarray) or (len(points) > 0 and np.ndim(points[0]) <= 1)
+    for part in [points] if is_one_array else points:
+        rows = np.asarray(part, np.float64).reshape(-1, 3)
+        for start in range(0, len(rows), FIT_BLOCK_ROWS):
+            yield rows[start:start + FIT_BLOCK_ROWS]
 
 
 @wp.struct

@@ -231,6 +231,24 @@ def test_shading_kernel_matches_the_formulas_in_float64() -> None:
         shade_parts(albedo, normals[:10], centres, cam, LIGHT)
 
 
+def test_light_view_of_point_blocks_is_the_view_of_their_concatenation(monkeypatch) -> None:
+    """fit_light_view reads a sequence of arrays (one per object and frame) block by block, never joined: the view
+    is bit for bit the one of their concatenation, whatever the block size, with empty parts among them."""
+    from data_gen.render import shadow_map
+
+    rng = np.random.default_rng(3)
+    parts = [rng.normal([0.2, -0.1, 0.4], 0.3, (n, 3)) for n in (700, 0, 1, 2500)] + [np.float32([[0.1, 2.0, 0.3]])]
+    whole = fit_light_view(LIGHT.direction, np.concatenate(parts), 0.02, 512)
+    for rows in (shadow_map.FIT_BLOCK_ROWS, 64, 1):
+        monkeypatch.setattr(shadow_map, "FIT_BLOCK_ROWS", rows)
+        view = fit_light_view(LIGHT.direction, parts, 0.02, 512)
+        assert view.K.tobytes() == whole.K.tobytes() and view.world_to_light.tobytes() == whole.world_to_light.tobytes()
+    assert fit_light_view(LIGHT.direction, [], 0.0, 64).K.tobytes() == fit_light_view(LIGHT.direction, np.zeros((0, 3)),
+                                                                                       0.0, 64).K.tobytes()  # fmt: skip
+    # the last part (a lone point far along +y) is what sets the field of view
+    assert fit_light_view(LIGHT.direction, parts[:-1], 0.02, 512).K[0, 0] > 1.1 * whole.K[0, 0]
+
+
 def test_light_view_sees_every_caster_and_lighting_is_deterministic() -> None:
     g = box_on_floor()
     casters = g.means_m[g.part_ids > 0]
