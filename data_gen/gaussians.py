@@ -130,7 +130,9 @@ class Gaussians:
             rot[:, 0] = 1.0
         else:
             rot = _as_float_array("rotations_wxyz", self.rotations_wxyz, (4,), n)
-            bad = np.linalg.norm(rot, axis=1) < 1e-8
+            norm = np.linalg.norm(rot, axis=1)
+            self.__dict__["_rotation_norms"] = norm  # (unit_rotations_wxyz divides by them: computed once)
+            bad = norm < 1e-8
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
                 raise ValueError(
@@ -165,7 +167,9 @@ class Gaussians:
         """(N, 4) float32 unit quaternions (the rotations normalised); covariance-form Gaussians have none."""
         if self.rotations_wxyz is None:
             raise ValueError("Gaussians given by covariances_m2 have no rotations")
-        norm = np.linalg.norm(self.rotations_wxyz, axis=1)
+        norm = self.__dict__.pop("_rotation_norms", None)  # __post_init__'s (a derived set has none)
+        if norm is None:
+            norm = np.linalg.norm(self.rotations_wxyz, axis=1)
         return (self.rotations_wxyz / norm[:, None]).astype(np.float32)
 
     def covariances(self) -> F64:

@@ -69,6 +69,9 @@ def test_derived_sets_hold_the_rows_and_colours_asked_for_and_check_the_new_colo
                   rotations_wxyz=rng.normal(size=(n, 4)) * 3.0, colors_rgb=rng.uniform(0, 1, (n, 3)),
                   opacities=rng.uniform(0, 1, n), part_ids=np.arange(n), normals=rng.normal(size=(n, 3)))  # fmt: skip
     unit = g.unit_rotations_wxyz  # cached now: a derived set carries its rows
+    # the norms the build checked are the ones divided by (kept from __post_init__, released once used)
+    np.testing.assert_array_equal(unit, g.rotations_wxyz / np.linalg.norm(g.rotations_wxyz, axis=1)[:, None])
+    assert "_rotation_norms" not in g.__dict__
     rows = np.array([5, 1, 1, 3])
     for sel in (rows, rows.astype(np.int32), np.isin(np.arange(n), rows)):
         s = g.subset(sel)
