@@ -17,8 +17,9 @@ Steps (each reads the same :class:`~data_gen.scenario.Scenario`, none changes it
    the values of its nearest cubature point (contact, stress) and of its
    object (id, material, class, mass x g). Scene flow is the displacement of
    that Gaussian to the next frame; optical flow is its projection (via
-   depth and both cameras, :func:`newtphys.consistency.optical_flow_from_scene_flow`),
-   so the two agree by construction.
+   depth and both cameras: the formula of
+   :func:`newtphys.consistency.optical_flow_from_scene_flow`, run per pixel by
+   :mod:`data_gen.render.motion_maps`), so the two agree by construction.
 4. **World state** (:func:`build_world_state`) from the simulation record and
    the rendered visibility.
 
@@ -51,6 +52,7 @@ from data_gen.gaussians import Gaussians
 from data_gen.object_boxes import oriented_box
 from data_gen.render.labels import LabelRasterizer, gather_labels
 from data_gen.render.lighting import SHADOW_TESTS, SceneLighting, largest_extent_m
+from data_gen.render.motion_maps import motion_maps
 from data_gen.render.projection import run_in_threads
 from data_gen.render.rgb import RgbRasterizer
 from data_gen.render.splat_pose import SplatPoser
@@ -67,7 +69,6 @@ from data_gen.sim.static_scene import StaticBox, StaticPoints, StaticScene
 from data_gen.sim.threads import torch_threads
 from data_gen.sim.world import SimObjectSpec, Simulator, UnsimulatableDraw
 from newtphys import geometry, schema
-from newtphys.consistency import optical_flow_from_scene_flow
 from newtphys.rotations import quat_to_matrix
 from newtphys.shards import SequenceArrays
 from newtphys.world_state import (
@@ -453,13 +454,10 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
             for k, o in enumerate(objects):
                 maps[schema.AMODAL_MATERIALS][t, k][masks[k]] = o.material_id
                 maps[schema.AMODAL_SEMANTIC_SEGMENTATION][t, k][masks[k]] = o.semantic_id
-    for t in range(t_count - 1):
-        disp_world = gather_labels(index_all[t], positions[t + 1] - positions[t])  # (H, W, 3) m
-        maps[schema.SCENE_FLOW][t] = geometry.rotate_vectors(w2c[t], disp_world).astype(np.float32)
-        of = optical_flow_from_scene_flow(maps[schema.DEPTH][t].astype(np.float64),
-                                          maps[schema.SCENE_FLOW][t].astype(np.float64), K, w2c[t], w2c[t + 1])
-        of[maps[schema.DEPTH][t] <= 0] = 0.0
-        maps[schema.OPTICAL_FLOW][t] = np.nan_to_num(of).astype(np.float32)
+    for t in range(t_count - 1):  # each pixel's winner moved to frame t + 1; the optical flow that implies
+        maps[schema.SCENE_FLOW][t], maps[schema.OPTICAL_FLOW][t] = motion_maps(
+            index_all[t], maps[schema.DEPTH][t], positions[t], positions[t + 1], K, w2c[t], w2c[t + 1], settings.device,
+            settings.num_threads)
     return maps, K.astype(np.float32), w2c.astype(np.float32)
 
 

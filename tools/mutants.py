@@ -21,6 +21,7 @@ DEFAULT_TESTS: dict[str, tuple[str, ...]] = {
     "data_gen/render/splat_pose.py": ("tests/render/test_splat_pose.py", "tests/data_gen/test_gaussian_normals.py"),
     "newtphys/consistency.py": ("tests/newtphys/test_core_consistency.py", LABEL_TESTS),
     "data_gen/pipeline.py": (LABEL_TESTS,),
+    "data_gen/render/motion_maps.py": (LABEL_TESTS,),  # the pipeline's label tests must catch its bugs themselves
     "data_gen/render/labels.py": ("tests/render/test_render_labels.py", LABEL_TESTS),
     "data_gen/vqa/generator.py": ("tests/data_gen/test_vqa_generation.py",),
     "data_gen/vqa/rules.py": ("tests/data_gen/test_vqa_generation.py",),
@@ -67,6 +68,7 @@ class Mutant:
 
 
 PIPELINE = "data_gen/pipeline.py"
+MOTION = "data_gen/render/motion_maps.py"
 CONSISTENCY = "newtphys/consistency.py"
 METRICS = "probes/metrics.py"
 LABELS = "data_gen/render/labels.py"
@@ -77,9 +79,9 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("collision_f1_tp_over_denominator", METRICS,
            "2 * tp / denom.clamp_min(1.0)",
            "tp / denom.clamp_min(1.0)"),
-    Mutant("scene_flow_scaled_0_9", PIPELINE,
-           "geometry.rotate_vectors(w2c[t], disp_world)",
-           "geometry.rotate_vectors(w2c[t], 0.9 * disp_world)"),
+    Mutant("scene_flow_scaled_0_9", MOTION,
+           "flow = cams.w2c_rotation * (next_centres_m[i] - centres_m[i])",
+           "flow = cams.w2c_rotation * ((next_centres_m[i] - centres_m[i]) * wp.float64(0.9))"),
     Mutant("gravity_next_frames_camera", PIPELINE,
            "geometry.rotate_vectors(w2c[t], weight)",
            "geometry.rotate_vectors(w2c[min(t + 1, t_count - 1)], weight)"),
@@ -90,12 +92,18 @@ MUTANTS: tuple[Mutant, ...] = (
            "stress[sl] = tr.hydrostatic_stress_pa[t][nearest[k]]",
            "stress[sl] = -tr.hydrostatic_stress_pa[t][nearest[k]]"),
     # --- pipeline: frames, cameras, pixels, units ---------------------------------------------------
-    Mutant("scene_flow_next_frames_camera", PIPELINE,
-           "geometry.rotate_vectors(w2c[t], disp_world)",
-           "geometry.rotate_vectors(w2c[t + 1], disp_world)"),
+    # the label tests cannot see this one (it moves the point where the flow is sampled by half a pixel: the flow
+    # changes by its gradient over half a pixel); the kernel's test against the contract's formula does
+    Mutant("optical_flow_kernel_rays_through_pixel_corners", MOTION,
+           "u = wp.float64(k % cams.width) + wp.float64(0.5)",
+           "u = wp.float64(k % cams.width)",
+           tests=(LABEL_TESTS, "tests/render/test_motion_maps.py")),
+    Mutant("scene_flow_next_frames_camera", MOTION,
+           "flow = cams.w2c_rotation * (",
+           "flow = cams.next_rotation * ("),
     Mutant("scene_flow_of_the_next_step", PIPELINE,
-           "positions[t + 1] - positions[t]",
-           "positions[min(t + 2, t_count - 1)] - positions[t + 1]"),
+           "positions[t], positions[t + 1], K",
+           "positions[t + 1], positions[min(t + 2, t_count - 1)], K"),
     Mutant("collision_drops_scene_contacts", PIPELINE,
            "contact[sl] = tr.contact_partner[t][nearest[k]] >= 0",
            "contact[sl] = tr.contact_partner[t][nearest[k]] > 0"),
@@ -117,9 +125,9 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("depth_in_millimetres", PIPELINE,
            "maps[schema.DEPTH][t] = depth",
            "maps[schema.DEPTH][t] = 1e3 * depth"),
-    Mutant("optical_flow_axes_swapped", PIPELINE,
-           "maps[schema.OPTICAL_FLOW][t] = np.nan_to_num(of).astype(np.float32)",
-           "maps[schema.OPTICAL_FLOW][t] = np.nan_to_num(of)[..., ::-1].astype(np.float32)"),
+    Mutant("optical_flow_axes_swapped", MOTION,
+           "optical_flow[k] = wp.vec2f(wp.float32(u1 - u), wp.float32(v1 - v))",
+           "optical_flow[k] = wp.vec2f(wp.float32(v1 - v), wp.float32(u1 - u))"),
     Mutant("instances_shifted_one_pixel", PIPELINE,
            "maps[schema.INSTANCES][t] = ids",
            "maps[schema.INSTANCES][t] = np.roll(ids, 1, axis=0)"),
@@ -139,11 +147,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "contact[sl] = tr.contact_partner[t][nearest[k]] >= 0",
            "contact[sl] = tr.contact_partner[t][nearest[k]] == 0"),
     Mutant("scene_flow_gathered_with_next_frames_index", PIPELINE,
-           "gather_labels(index_all[t], positions[t + 1] - positions[t])",
-           "gather_labels(index_all[t + 1], positions[t + 1] - positions[t])"),
+           "index_all[t], maps[schema.DEPTH][t], positions",
+           "index_all[t + 1], maps[schema.DEPTH][t], positions"),
     Mutant("optical_flow_from_next_frames_depth", PIPELINE,
-           "of = optical_flow_from_scene_flow(maps[schema.DEPTH][t].astype(np.float64)",
-           "of = optical_flow_from_scene_flow(maps[schema.DEPTH][t + 1].astype(np.float64)"),
+           "index_all[t], maps[schema.DEPTH][t], positions",
+           "index_all[t], maps[schema.DEPTH][t + 1], positions"),
     # --- consistency (also what the pipeline's optical flow is computed with) -----------------------
     Mutant("optical_flow_projected_with_current_camera", CONSISTENCY,
            "geometry.transform_points(w2c_next, moved)",

@@ -25,7 +25,7 @@ def _nvrtc_archs() -> list[int]:
 
 RENDER_KERNEL_MODULES = ("data_gen.render.projection", "data_gen.render.rgb", "data_gen.render.labels",
                          "data_gen.render.splat_pose", "data_gen.render.shadow_map",
-                         "data_gen.render.shading")  # fmt: skip
+                         "data_gen.render.shading", "data_gen.render.motion_maps")  # fmt: skip
 """The renderer's warp modules (a few seconds each to PTX; they ran on an H200 in the sixteenth session)."""
 
 
