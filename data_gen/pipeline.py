@@ -414,9 +414,12 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
                                 zip([n_scene] + sizes, [scene_g] + [o.surface for o in objects])])
     rgb_r = RgbRasterizer(h, w, settings.device, settings.num_threads)
     lab_r = LabelRasterizer(h, w, settings.device, settings.num_threads, depth_mode="surface")
-    index_all = np.zeros((t_count, h, w), np.int64)
+    index_all = np.zeros((t_count, h, w), np.int32)
     pose_workers = settings.num_threads if settings.device == "cpu" else 1
     object_ids = [o.object_id for o in objects]
+    amodal_materials, amodal_semantics = (  # per object (objects, 1, 1), in the maps' dtypes
+        np.array([getattr(o, f) for o in objects], schema.MAPS[m].dtype).reshape(-1, 1, 1)
+        for f, m in (("material_id", schema.AMODAL_MATERIALS), ("semantic_id", schema.AMODAL_SEMANTIC_SEGMENTATION)))
     for t in range(t_count):  # loop over frames
         contact = np.zeros(n_all, bool)
         stress = np.zeros(n_all, np.float32)
@@ -446,14 +449,13 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
         maps[schema.SEMANTIC_SEGMENTATION][t] = gather_labels(index, semantic)
         maps[schema.COLLISION][t] = gather_labels(index, contact, False)
         maps[schema.STRESS][t] = gather_labels(index, stress)
-        weight = mass_of_id[ids.astype(np.int64)][..., None] * gravity  # (H, W, 3) N, world frame
-        maps[schema.GRAVITY][t] = geometry.rotate_vectors(w2c[t], weight).astype(np.float32)
+        weight = mass_of_id[:, None] * gravity  # (ids, 3) N, world frame: every pixel of an id has its object's
+        maps[schema.GRAVITY][t] = geometry.rotate_vectors(w2c[t], weight).astype(np.float32)[ids]  # (H, W, 3)
         if n_obj:
             masks = lab_r.render_group_masks(g, K, w2c[t], instance, object_ids, projected=True)  # as rendered above
             maps[schema.AMODAL_INSTANCES][t] = masks
-            for k, o in enumerate(objects):
-                maps[schema.AMODAL_MATERIALS][t, k][masks[k]] = o.material_id
-                maps[schema.AMODAL_SEMANTIC_SEGMENTATION][t, k][masks[k]] = o.semantic_id
+            np.multiply(masks, amodal_materials, out=maps[schema.AMODAL_MATERIALS][t])  # (objects, H, W): id or 0
+            np.multiply(masks, amodal_semantics, out=maps[schema.AMODAL_SEMANTIC_SEGMENTATION][t])
     for t in range(t_count - 1):  # each pixel's winner moved to frame t + 1; the optical flow that implies
         maps[schema.SCENE_FLOW][t], maps[schema.OPTICAL_FLOW][t] = motion_maps(
             index_all[t], maps[schema.DEPTH][t], positions[t], positions[t + 1], K, w2c[t], w2c[t + 1], settings.device,
