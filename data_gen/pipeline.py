@@ -450,16 +450,15 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
         maps[schema.COLLISION][t] = gather_labels(index, contact, False)
         maps[schema.STRESS][t] = gather_labels(index, stress)
         weight = mass_of_id[:, None] * gravity  # (ids, 3) N, world frame: every pixel of an id has its object's
-        maps[schema.GRAVITY][t] = geometry.rotate_vectors(w2c[t], weight).astype(np.float32)[ids]  # (H, W, 3)
+        np.take(geometry.rotate_vectors(w2c[t], weight).astype(np.float32), ids, axis=0, out=maps[schema.GRAVITY][t])
         if n_obj:
             masks = lab_r.render_group_masks(g, K, w2c[t], instance, object_ids, projected=True)  # as rendered above
             maps[schema.AMODAL_INSTANCES][t] = masks
             np.multiply(masks, amodal_materials, out=maps[schema.AMODAL_MATERIALS][t])  # (objects, H, W): id or 0
             np.multiply(masks, amodal_semantics, out=maps[schema.AMODAL_SEMANTIC_SEGMENTATION][t])
     for t in range(t_count - 1):  # each pixel's winner moved to frame t + 1; the optical flow that implies
-        maps[schema.SCENE_FLOW][t], maps[schema.OPTICAL_FLOW][t] = motion_maps(
-            index_all[t], maps[schema.DEPTH][t], positions[t], positions[t + 1], K, w2c[t], w2c[t + 1], settings.device,
-            settings.num_threads)
+        motion_maps(index_all[t], maps[schema.DEPTH][t], positions[t], positions[t + 1], K, w2c[t], w2c[t + 1],
+                    settings.device, settings.num_threads, out=(maps[schema.SCENE_FLOW][t], maps[schema.OPTICAL_FLOW][t]))
     return maps, K.astype(np.float32), w2c.astype(np.float32)
 
 

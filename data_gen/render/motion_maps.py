@@ -128,13 +128,15 @@ def motion_maps(
     next_world_to_camera: ArrayLike,
     device: str = "cpu",
     num_threads: int = 1,
+    out: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None,
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """(scene flow (H, W, 3) float32 m in frame t's camera, optical flow (H, W, 2) float32 px) of one frame.
 
     ``index`` (H, W): frame t's label winners (-1: none); ``depth_m`` (H, W): frame t's depth (0: none);
     ``centres_m`` / ``next_centres_m`` (N, 3): every splat's centre at frames t and t + 1 (world, m); ``K``
     (3x3, px) and the two frames' world-to-camera 4x4 (m); ``num_threads``: CPU threads over pixel ranges (the
-    same bytes for any count). See the module docstring.
+    same bytes for any count); ``out``: C-contiguous float32 (H, W, 3) and (H, W, 2) arrays to fill and return (on
+    the CPU the kernel writes them in place). See the module docstring.
     """
     idx = np.ascontiguousarray(index, np.int32)
     h, w = idx.shape
@@ -149,8 +151,17 @@ def motion_maps(
         raise ValueError(f"motion_maps: label index {int(idx.max())} out of range for {len(x0)} splats")
     cpu = wp.get_device(device).is_cpu
     _load(device)
-    flow3 = wp.empty(h * w, dtype=wp.vec3f, device=device)
-    flow2 = wp.empty(h * w, dtype=wp.vec2f, device=device)
+    if out is not None:
+        for a, c in zip(out, (3, 2)):
+            if a.shape != (h, w, c) or a.dtype != np.float32 or not a.flags.c_contiguous:
+                raise ValueError(f"motion_maps: out arrays must be C-contiguous float32 {(h, w, c)}, "
+                                 f"got {a.dtype} {a.shape}")  # fmt: skip
+    if out is not None and cpu:  # the kernel writes the caller's arrays
+        flow3 = wp.array(out[0].reshape(-1, 3), dtype=wp.vec3f, device=device, copy=False)
+        flow2 = wp.array(out[1].reshape(-1, 2), dtype=wp.vec2f, device=device, copy=False)
+    else:
+        flow3 = wp.empty(h * w, dtype=wp.vec3f, device=device)
+        flow2 = wp.empty(h * w, dtype=wp.vec2f, device=device)
     inputs = [
         wp.array(idx.reshape(-1), dtype=wp.int32, device=device, copy=not cpu),
         wp.array(depth.reshape(-1), dtype=wp.float32, device=device, copy=not cpu),
@@ -166,7 +177,12 @@ def motion_maps(
                   inputs=[*inputs, int(bounds[j])], outputs=[flow3, flow2])  # fmt: skip
 
     run_in_threads(launch, parts)
-    return flow3.numpy().reshape(h, w, 3), flow2.numpy().reshape(h, w, 2)
+    if out is None:
+        return flow3.numpy().reshape(h, w, 3), flow2.numpy().reshape(h, w, 2)
+    if not cpu:
+        out[0][...] = flow3.numpy().reshape(h, w, 3)
+        out[1][...] = flow2.numpy().reshape(h, w, 2)
+    return out
 
 
 __all__ = ["FlowCameras", "flow_cameras", "motion_maps", "motion_maps_kernel"]

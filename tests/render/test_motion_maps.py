@@ -80,6 +80,19 @@ def test_motion_maps_are_the_same_bytes_on_any_thread_count() -> None:
             assert a.tobytes() == b.tobytes()
 
 
+def test_motion_maps_fill_given_arrays_in_place() -> None:
+    """``out``: the caller's arrays (e.g. a sequence's map slices) hold the same bytes the returned ones would."""
+    frame = _random_frame(seed=4)
+    want = motion_maps(*frame, num_threads=2)
+    maps3, maps2 = np.full((2, 60, 80, 3), np.nan, np.float32), np.full((2, 60, 80, 2), np.nan, np.float32)
+    got = motion_maps(*frame, num_threads=2, out=(maps3[1], maps2[1]))
+    assert got[0] is maps3[1] or np.shares_memory(got[0], maps3)
+    assert maps3[1].tobytes() == want[0].tobytes() and maps2[1].tobytes() == want[1].tobytes()
+    assert np.isnan(maps3[0]).all() and np.isnan(maps2[0]).all()  # nothing written past the slices
+    with pytest.raises(ValueError, match=r"out arrays must be C-contiguous float32 \(60, 80, 2\)"):
+        motion_maps(*frame, out=(maps3[1], maps2[1].astype(np.float64)))
+
+
 def test_motion_maps_refuse_mismatched_input() -> None:
     index, depth, x0, x1, K, w2c, w2c_next = _random_frame()
     with pytest.raises(ValueError, match=r"depth_m must have the label index's shape \(60, 80\)"):
