@@ -153,7 +153,7 @@ def _fill_uncovered(visibility: NDArray[np.float32], uncovered: NDArray[np.bool_
     object would get a lit fringe)."""
     if not uncovered.any() or uncovered.all():
         return visibility
-    _, (iy, ix) = ndimage.distance_transform_edt(uncovered, return_indices=True)
+    iy, ix = ndimage.distance_transform_edt(uncovered, return_distances=False, return_indices=True)
     return visibility[iy, ix]
 
 
