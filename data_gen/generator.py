@@ -233,8 +233,8 @@ def run_generation(cfg: GenerationConfig) -> GenerationReport:
     bar = tqdm(total=total, desc=f"generate {cfg.split}", unit="seq", disable=not cfg.progress)
     for s in todo:
         slots = range(s * cfg.sequences_per_shard, min((s + 1) * cfg.sequences_per_shard, cfg.num_sequences))
-        with ShardWriter(cfg.out_dir, cfg.split, s, config_yaml=cfg.config_yaml,
-                         generator=f"newtphys {__version__}") as writer:
+        with ShardWriter(cfg.out_dir, cfg.split, s, config_yaml=cfg.config_yaml, generator=f"newtphys {__version__}",
+                         num_threads=cfg.render.num_threads) as writer:  # fmt: skip
             for slot in slots:
                 seq = _generate_slot(cfg, slot, split_dir, report)
                 writer.add_sequence(seq.world_state.sequence_id, seq.maps, seq.K, seq.world_to_camera, seq.world_state)

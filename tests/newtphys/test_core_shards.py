@@ -54,6 +54,33 @@ def test_round_trip_is_bit_identical(tmp_path: Path) -> None:
             np.testing.assert_array_equal(r.read(sid, schema.DEPTH, 2, 4), maps[schema.DEPTH][2:4])
 
 
+@pytest.mark.parametrize("num_threads", [1, 3])
+def test_chunks_deflated_by_the_writer_are_hdf5s_own(tmp_path: Path, num_threads: int) -> None:
+    """The writer shuffles and deflates each frame's chunk itself (on num_threads threads) and stores it as is: every
+    chunk holds the bytes HDF5's own shuffle + gzip pipeline writes for the same array, and reads back exactly."""
+    maps, K, w2c, ws = render_fixture_sequence("s-0", "train", seed=3, num_frames=4, image_size=(16, 24))
+    with ShardWriter(tmp_path, "train", 0, num_threads=num_threads) as w:
+        w.add_sequence("s-0", maps, K, w2c, ws)
+    with h5py.File(tmp_path / "reference.h5", "w") as ref:
+        for name, arr in maps.items():
+            ref.create_dataset(name, data=arr, chunks=(1,) + arr.shape[1:], compression="gzip", compression_opts=1,
+                               shuffle=arr.dtype.itemsize > 1)  # fmt: skip
+    with h5py.File(tmp_path / "train" / schema.shard_filename(0)) as f, h5py.File(tmp_path / "reference.h5") as ref:
+        widths = set()
+        for name, arr in maps.items():
+            ours, theirs = f["s-0"][name], ref[name]
+            assert ours.shuffle == (arr.dtype.itemsize > 1) and ours.compression_opts == 1
+            widths.add(arr.dtype.itemsize)
+            for t in range(arr.shape[0]):
+                at = (t,) + (0,) * (arr.ndim - 1)
+                mask, chunk = ours.id.read_direct_chunk(at)
+                assert mask == 0 and chunk == theirs.id.read_direct_chunk(at)[1], (name, t)
+            assert ours[()].tobytes() == arr.tobytes()
+        assert {1, 2, 4} <= widths  # bytes (bool, uint8), uint16 and float32 maps: with and without the shuffle
+    with pytest.raises(ValueError, match="num_threads must be >= 1, got 0"):
+        ShardWriter(tmp_path, "train", 1, num_threads=0)
+
+
 def test_index_lists_shards_and_frames(tmp_path: Path) -> None:
     _write(tmp_path, 0, ids=("a", "b"))
     _write(tmp_path, 1, ids=("c",))
