@@ -72,6 +72,24 @@ def test_hand_computed_flows_of_a_moving_camera_and_a_moving_splat() -> None:
     np.testing.assert_allclose(flow[..., 1], 20.0, atol=1e-4)
 
 
+def test_still_points_under_a_still_camera_have_exactly_zero_flow() -> None:
+    """A pixel whose splat did not move, seen by a camera that did not move, has optical flow exactly 0 (not the
+    ~1e-13 px round-off of projecting its ray back to the pixel centre, which no compressor can shrink); the
+    splats that moved keep their flow."""
+    index, depth, x0, _, K, w2c, _ = _random_frame(seed=5)
+    x1 = x0.copy()
+    moving = np.arange(len(x0)) % 10 == 0
+    x1[moving] += [0.05, -0.02, 0.01]
+    scene_flow, flow = motion_maps(index, depth, x0, x1, K, w2c, w2c)
+    still = (index >= 0) & ~moving[np.maximum(index, 0)]
+    assert still.sum() > 1000 and not flow[still].any() and not scene_flow[still].any()
+    moved = (index >= 0) & moving[np.maximum(index, 0)] & (depth > 0)
+    assert moved.sum() > 100 and (np.abs(flow[moved]).max(axis=-1) > 1e-3).all()
+    implied = optical_flow_from_scene_flow(depth.astype(np.float64), scene_flow.astype(np.float64), K, w2c, w2c)
+    assert np.abs(implied[still & (depth > 0)]).max() > 0.0  # the formula's round-off, which the kernel avoids
+    np.testing.assert_allclose(flow[moved], implied[moved], rtol=1e-6, atol=1e-6)
+
+
 def test_motion_maps_are_the_same_bytes_on_any_thread_count() -> None:
     frame = _random_frame(seed=3)
     first = motion_maps(*frame, num_threads=1)
