@@ -246,16 +246,12 @@ class ShardWriter:
 
         frames = range(arr.shape[0])
         if self.num_threads == 1:
-            chunks = map(deflate, frames)
-        else:
-            pool = ThreadPoolExecutor(min(self.num_threads, arr.shape[0]))
-            chunks = pool.map(deflate, frames)
-        try:
-            for t, chunk in enumerate(chunks):
+            for t in frames:
+                ds.id.write_direct_chunk((t,) + tail, deflate(t), filter_mask=0)
+            return
+        with ThreadPoolExecutor(min(self.num_threads, arr.shape[0])) as pool:
+            for t, chunk in enumerate(pool.map(deflate, frames)):  # (in frame order; the chunks are written here)
                 ds.id.write_direct_chunk((t,) + tail, chunk, filter_mask=0)
-        finally:
-            if self.num_threads > 1:
-                pool.shutdown()
 
     @property
     def num_sequences(self) -> int:
