@@ -417,6 +417,7 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
     index_all = np.zeros((t_count, h, w), np.int32)
     pose_workers = settings.num_threads if settings.device == "cpu" else 1
     object_ids = [o.object_id for o in objects]
+    weight = mass_of_id[:, None] * gravity  # (ids, 3) N, world frame: every pixel of an id has its object's
     amodal_materials, amodal_semantics = (  # per object (objects, 1, 1), in the maps' dtypes
         np.array([getattr(o, f) for o in objects], schema.MAPS[m].dtype).reshape(-1, 1, 1)
         for f, m in (("material_id", schema.AMODAL_MATERIALS), ("semantic_id", schema.AMODAL_SEMANTIC_SEGMENTATION)))
@@ -449,7 +450,6 @@ def render_sequence(scenario: Scenario, objects: list[SceneObject], layout: Scen
         maps[schema.SEMANTIC_SEGMENTATION][t] = gather_labels(index, semantic)
         maps[schema.COLLISION][t] = gather_labels(index, contact, False)
         maps[schema.STRESS][t] = gather_labels(index, stress)
-        weight = mass_of_id[:, None] * gravity  # (ids, 3) N, world frame: every pixel of an id has its object's
         np.take(geometry.rotate_vectors(w2c[t], weight).astype(np.float32), ids, axis=0, out=maps[schema.GRAVITY][t])
         if n_obj:
             masks = lab_r.render_group_masks(g, K, w2c[t], instance, object_ids, projected=True)  # as rendered above

@@ -234,7 +234,7 @@ class ShardWriter:
         """Every frame of ``arr`` as one chunk of ``ds``, through the dataset's own filters done here: HDF5's
         byte shuffle (elements wider than a byte), then zlib's deflate at the writer's level (HDF5's gzip filter
         is zlib's ``compress2``: the same bytes). Frames are compressed ``num_threads`` at a time."""
-        level = int(self.compression_level if self.compression_level is not None else COMPRESSION_LEVEL)
+        level = int(self.compression_level)  # (gzip: always set)
         tail = (0,) * (arr.ndim - 1)
 
         def deflate(t: int) -> bytes:

@@ -19,9 +19,6 @@ kernel to them.
 
 from __future__ import annotations
 
-import sys
-import threading
-
 import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
@@ -95,20 +92,6 @@ def motion_maps_kernel(
     optical_flow[k] = wp.vec2f(wp.float32(u1 - u0), wp.float32(v1 - v0))
 
 
-_LOADED: set[str] = set()
-_LOAD_LOCK = threading.Lock()
-
-
-def _load(device: str) -> None:
-    """Load this module's kernel on ``device`` on the calling thread, before any thread launches it (two threads
-    loading one warp module at once crashed a process once: sixteenth session)."""
-    key = str(wp.get_device(device))
-    with _LOAD_LOCK:
-        if key not in _LOADED:
-            wp.load_module(sys.modules[__name__], device=device)
-            _LOADED.add(key)
-
-
 def _rigid(m: NDArray[np.float64]) -> tuple[wp.mat33d, wp.vec3d]:
     return wp.mat33d(*m[:3, :3].ravel().tolist()), wp.vec3d(*m[:3, 3].tolist())
 
@@ -162,7 +145,7 @@ def motion_maps(
     if idx.size and int(idx.max()) >= len(x0):
         raise ValueError(f"motion_maps: label index {int(idx.max())} out of range for {len(x0)} splats")
     cpu = wp.get_device(device).is_cpu
-    _load(device)
+    wp.load_module(__name__, device=device)  # here, before the threads launch it (warp keeps it: ~3 us once loaded)
     if out is not None:
         for a, c in zip(out, (3, 2)):
             if a.shape != (h, w, c) or a.dtype != np.float32 or not a.flags.c_contiguous:
