@@ -1,0 +1,551 @@
+"""The fused Newton solve of :mod:`data_gen.sim.fused_newton` as launches with a thread per element: the shape a GPU wants.
+
+:class:`~data_gen.sim.fused_newton.FusedNewton` runs each island's whole solve in one thread: right for a CPU
+core, wrong for a GPU, where one thread doing an island's Newton method (its envelope Cholesky included) is far
+slower than a core. :class:`DeviceNewton` runs the same algorithm (issue 13, item 4) as a schedule of launches:
+
+* the objective, gradient and Newton matrix are summed by one launch per term with a thread per element:
+  per object (inertia, gravity and the motion bound the scene test reads), per cubature point (neo-Hookean),
+  per contact sphere (scene contact and friction) and per candidate pair (pair contact and friction), each
+  adding its part to its island's value, gradient and dense matrix with atomic adds (:func:`wp.atomic_add`);
+* one thread per island factorises (dense Cholesky, the fused kernel's ridge and hand-back rules), takes the
+  trust limit, the converged shortcut and the Armijo decisions, and sets what the next launches evaluate;
+* the loops (Newton iterations, line-search trials) run under :func:`wp.capture_while` on flags the island
+  threads set: on the CPU that reads the flag from host memory; on CUDA inside a graph capture it is a
+  conditional node, so a solve needs no host read at all (not yet run on a GPU: see docs/gpu_checks.md).
+
+The decisions are the fused kernel's (:func:`data_gen.sim.fused_newton._take_update`, ``_newton``) on the same
+values; the values are its terms summed in another order (round-off), so a solve takes the same iterations and
+ends at the same state to round-off: ``tests/sim/test_sim_device_newton.py`` checks that on recorded steps. It
+uses a :class:`FusedNewton`'s model, scene, step data and buffers, and solves what :meth:`FusedNewton.solve` does
+(whole steps; sub-steps and the split solve of soft islands stay with the fused kernel).
+
+On the CPU the threads of a launch run one after another, so the sums are deterministic; this path costs more
+there than the fused kernel (every term is a launch, every trial another round of them), which stays the CPU's.
+On CUDA the atomic adds make the sums' order, and so the last bits, vary between runs.
+"""
+
+from __future__ import annotations
+
+import torch
+import warp as wp
+
+from data_gen.sim.energy.elastic_kernel import neo_hookean_point, not_positive_definite, projected_neo_hookean_hessian
+from data_gen.sim.fused_newton import (
+    CONVERGED,
+    EVALUATIONS,
+    EVALUATIONS_WITH_DERIVATIVES,
+    ITERATIONS,
+    LINE_SEARCH_EXTENDED,
+    LINE_SEARCH_FAILURES,
+    NEEDS_FALLBACK,
+    NUM_STATS,
+    SOLVED,
+    STATUS,
+    TRUST_LIMITED,
+    Bodies,
+    FusedNewton,
+    SceneArgs,
+    StepData,
+    Work,
+    _cholesky,
+    _deformation_gradient,
+    _load_state,
+    _motion_bound,
+    _newton_direction,
+    _pair_at,
+    _pair_out_of_reach,
+    _scene_sphere,
+    _solve_start,
+    _update_norms,
+    _wp,
+)
+from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
+
+wp.set_module_options({"enable_backward": False})
+
+_ZERO = wp.constant(wp.float64(0.0))
+_ONE = wp.constant(wp.float64(1.0))
+
+# an island's phase between launches
+EVALUATE = wp.constant(0)  # its derivatives at q are wanted (an iteration starts with an evaluation)
+HAVE = wp.constant(1)  # its derivatives at q are in grad / hess (the accepted first trial left them)
+SEARCH = wp.constant(2)  # a line-search trial is being evaluated
+DONE = wp.constant(3)  # converged, stopped unconverged, or handed back (stats say which)
+# what the term launches evaluate for an island (``Island.mode``)
+NOTHING, VALUE, DERIVATIVES = wp.constant(0), wp.constant(1), wp.constant(2)
+
+
+@wp.struct
+class Island:
+    """Per-island state of the schedule, and the loop flags (one int32 each) :func:`wp.capture_while` reads."""
+
+    phase: wp.array(dtype=wp.int32)
+    mode: wp.array(dtype=wp.int32)
+    object_island: wp.array(dtype=wp.int32)  # (n,) each object's island
+    value: wp.array(dtype=wp.float64)  # the objective at q, J
+    total: wp.array(dtype=wp.float64)  # what the term launches add up: the objective at the evaluated state, J
+    alpha: wp.array(dtype=wp.float64)
+    slope: wp.array(dtype=wp.float64)  # grad . dq at q
+    mass: wp.array(dtype=wp.float64)  # |dq|_M
+    trial: wp.array(dtype=wp.int32)  # the line search's trial number
+    iterating: wp.array(dtype=wp.int32)  # [0]: some island is not DONE
+    searching: wp.array(dtype=wp.int32)  # [0]: some island is in SEARCH
+
+
+@wp.func
+def _add_gradient(grad: wp.array(dtype=wp.float64), first: int, b: wp.array3d(dtype=wp.float64), o: int, s: int,
+                  cols: int, g: wp.vec3d):  # fmt: skip
+    """grad[first + r cols + a] += g[r] b[o, s, a] (atomically; nothing where the basis value is zero)."""
+    for a in range(cols):
+        ba = b[o, s, a]
+        if ba != _ZERO:
+            for r in range(3):
+                wp.atomic_add(grad, first + r * cols + a, g[r] * ba)
+
+
+@wp.func
+def _add_block(hess: wp.array(dtype=wp.float64), n_size: int, matrix_base: int, b: wp.array3d(dtype=wp.float64),
+               o: int, s: int, cols: int, first_o: int, p: int, t: int, cols_p: int, first_p: int, h: wp.mat33d):  # fmt: skip
+    """hess[(r, a), (c, e)] += h[r, c] b[o, s, a] b[p, t, e] (atomically) for the rows of sphere (o, s) and the
+    columns of sphere (p, t) (island-local first unknowns ``first_o`` / ``first_p``); nothing where the basis
+    product is zero, as :func:`data_gen.sim.energy.contact_kernels.add_block`."""
+    for a in range(cols):
+        ba = b[o, s, a]
+        if ba != _ZERO:
+            for e in range(cols_p):
+                w = ba * b[p, t, e]
+                if w != _ZERO:
+                    for r in range(3):
+                        row = matrix_base + (first_o + r * cols + a) * n_size + first_p + e
+                        for c in range(3):
+                            wp.atomic_add(hess, row + c * cols_p, h[r, c] * w)
+
+
+@wp.kernel
+def start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Island,
+                 threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64), limits_given: int,
+                 tolerance: wp.float64, gravity_norm: wp.float64):  # fmt: skip
+    """Island ``isl``: its limits and scene margins (:func:`_solve_start`), cleared counters, phase EVALUATE, and
+    the dense envelope (every row's first column 0; padding rows their diagonal only)."""
+    isl = wp.tid()
+    _solve_start(bd, sc, st, threshold, trust_m, isl, limits_given, tolerance, gravity_norm)
+    for k in range(NUM_STATS):
+        wk.stats[isl, k] = 0
+    isl_info.phase[isl] = EVALUATE
+    isl_info.mode[isl] = NOTHING
+    n_size = bd.island_size
+    for r in range(n_size):
+        wk.first[isl * n_size + r] = wp.where(r < bd.island_dofs[isl], 0, r)
+    isl_info.iterating[0] = 1
+
+
+@wp.kernel
+def prepare_kernel(bd: Bodies, wk: Work, isl_info: Island, iterations: int):
+    """Islands at the iteration cap: DONE; in EVALUATE: their state q loaded for an evaluation with derivatives;
+    in HAVE: nothing to evaluate. Clears the outer loop's flag (:func:`iterating_kernel` sets it)."""
+    isl = wp.tid()
+    if isl == 0:
+        isl_info.iterating[0] = 0
+    isl_info.mode[isl] = NOTHING
+    phase = isl_info.phase[isl]
+    if (phase == EVALUATE or phase == HAVE) and wk.stats[isl, ITERATIONS] >= iterations:
+        isl_info.phase[isl] = DONE
+        return
+    if phase == EVALUATE:
+        _load_state(bd, wk.q, wk.tm, isl)
+        isl_info.mode[isl] = DERIVATIVES
+        wk.stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
+
+
+@wp.kernel
+def load_kernel(bd: Bodies, wk: Work, isl_info: Island, mode: int):
+    """Island ``isl``'s state q loaded for an evaluation of ``mode`` (:meth:`DeviceNewton.evaluate`)."""
+    isl = wp.tid()
+    _load_state(bd, wk.q, wk.tm, isl)
+    isl_info.mode[isl] = mode
+
+
+@wp.kernel
+def clear_kernel(bd: Bodies, wk: Work, isl_info: Island):
+    """Entry (isl, i, j) of the islands to evaluate: the matrix and gradient cleared for derivatives (identity
+    rows on padding), the sum of the objective cleared. Clears the line search's flag (the launches after the
+    terms set it: :func:`direction_kernel`, :func:`decide_kernel`)."""
+    isl, i, j = wp.tid()
+    if isl == 0 and i == 0 and j == 0:
+        isl_info.searching[0] = 0
+    mode = isl_info.mode[isl]
+    if mode == NOTHING:
+        return
+    n_size = bd.island_size
+    if i == 0 and j == 0:
+        isl_info.total[isl] = _ZERO
+    if mode == DERIVATIVES:
+        if j == 0:
+            wk.grad[isl * n_size + i] = _ZERO
+        v = _ZERO
+        if i == j and i >= bd.island_dofs[isl]:
+            v = _ONE
+        wk.hess[(isl * n_size + i) * n_size + j] = v
+
+
+@wp.kernel
+def inertia_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
+    """Object o: inertia ``1/2 d^T M d`` (d = Tm - Tm_pred) and gravity ``-h^2 g . Tm sum_p m_p b_p``, with their
+    derivatives; and its motion bound since the step's start (what the scene test reads)."""
+    o = wp.tid()
+    isl = isl_info.object_island[o]
+    mode = isl_info.mode[isl]
+    if mode == NOTHING:
+        return
+    tm = wk.tm
+    cols = bd.columns[o]
+    kp = bd.flat_index.shape[1] // 3
+    n_size = bd.island_size
+    h2 = st.h2[isl]
+    value = _ZERO
+    for r in range(3):
+        for a in range(cols):
+            row = r * kp + a
+            m_d = _ZERO
+            for s in range(3):
+                for c in range(cols):
+                    m_d = m_d + bd.mass_matrix[o, row, s * kp + c] * (tm[o, s, c] - st.tm_pred[o, s, c])
+            value = value + wp.float64(0.5) * (tm[o, r, a] - st.tm_pred[o, r, a]) * m_d
+            value = value - h2 * st.gravity[r] * tm[o, r, a] * bd.mass_b_sum[o, a]
+            if mode == DERIVATIVES:
+                fr = bd.flat_index[o, row]
+                wp.atomic_add(wk.grad, fr, m_d - h2 * st.gravity[r] * bd.mass_b_sum[o, a])
+                for s in range(3):
+                    for c in range(cols):
+                        m = bd.mass_matrix[o, row, s * kp + c]
+                        if m != _ZERO:
+                            fc = bd.flat_index[o, s * kp + c] - isl * n_size
+                            wp.atomic_add(wk.hess, fr * n_size + fc, m)
+    wp.atomic_add(isl_info.total, isl, value)
+    st.moved[o] = _motion_bound(bd, st, tm, o, cols)
+
+
+@wp.kernel
+def elastic_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
+    """Cubature point i of object o: ``h^2 V Psi(F_i)``, its gradient ``h^2 V P C_i^T`` and matrix
+    ``h^2 V C_i^T H C_i`` (H projected where it fails the near-SPD test, as the fused kernel does)."""
+    o, i = wp.tid()
+    isl = isl_info.object_island[o]
+    mode = isl_info.mode[isl]
+    v = bd.cub_volume[o, i]
+    if mode == NOTHING or v == _ZERO:
+        return
+    cols = bd.columns[o]
+    kp = bd.flat_index.shape[1] // 3
+    n_size = bd.island_size
+    w = st.h2[isl] * v
+    f = _deformation_gradient(bd, wk.tm4, o, i, cols)
+    psi, piola, h9 = neo_hookean_point(f, bd.mu_pa[o], bd.lam_pa[o], wp.where(mode == DERIVATIVES, 1, 0))
+    wp.atomic_add(isl_info.total, isl, w * psi)
+    if mode != DERIVATIVES:
+        return
+    if not_positive_definite(h9, bd.spd_tolerance_pa[o]) != 0:
+        h9 = projected_neo_hookean_hessian(f, bd.mu_pa[o], bd.lam_pa[o])
+    for r in range(3):
+        for a in range(cols):
+            fr = bd.flat_index[o, r * kp + a]
+            g_ra = _ZERO
+            for j in range(3):
+                g_ra = g_ra + piola[r, j] * bd.cub_c[o, i, a, j]
+            wp.atomic_add(wk.grad, fr, w * g_ra)
+            for s in range(3):
+                for c in range(cols):
+                    k_v = _ZERO
+                    for j in range(3):
+                        caj = bd.cub_c[o, i, a, j]
+                        for l in range(3):
+                            k_v = k_v + h9[r * 3 + j, s * 3 + l] * caj * bd.cub_c[o, i, c, l]
+                    if k_v != _ZERO:
+                        fc = bd.flat_index[o, s * kp + c] - isl * n_size
+                        wp.atomic_add(wk.hess, fr * n_size + fc, w * k_v)
+
+
+@wp.kernel
+def scene_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Island):
+    """Contact sphere s of object o against the static scene (with its frozen friction), skipped where its start
+    margin exceeds its motion bound (the scene distance is 1-Lipschitz: it cannot touch)."""
+    o, s = wp.tid()
+    isl = isl_info.object_island[o]
+    mode = isl_info.mode[isl]
+    if mode == NOTHING:
+        return
+    if st.margin[o, s] > st.moved[o] * bd.b_norm[o, s]:
+        return
+    cols = bd.columns[o]
+    active, e, g, h, normal = _scene_sphere(bd, sc, st, wk.tm, o, s, cols)
+    if active == 0:
+        return
+    h2 = st.h2[isl]
+    wp.atomic_add(isl_info.total, isl, h2 * e)
+    if mode == DERIVATIVES:
+        n_size = bd.island_size
+        first = bd.flat_index[o, 0]
+        local = first - isl * n_size
+        _add_gradient(wk.grad, first, bd.b, o, s, cols, h2 * g)
+        _add_block(wk.hess, n_size, isl * n_size * n_size, bd.b, o, s, cols, local, o, s, cols, local, h2 * h)
+
+
+@wp.kernel
+def pairs_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
+    """Candidate pair p (its side i on an object of the island; side j another object of it, or frozen): pair
+    contact with its frozen friction, the four blocks of the matrix where j moves."""
+    p = wp.tid()
+    isl = isl_info.object_island[st.obj_i[p]]
+    mode = isl_info.mode[isl]
+    if mode == NOTHING or _pair_out_of_reach(bd, st, p):
+        return
+    active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, wk.tm, p)
+    if active == 0:
+        return
+    h2 = st.h2[isl]
+    wp.atomic_add(isl_info.total, isl, h2 * e)
+    if mode != DERIVATIVES:
+        return
+    n_size = bd.island_size
+    start = isl * n_size
+    base = start * n_size
+    gs = h2 * g
+    hs = h2 * h
+    fi = bd.flat_index[oi, 0]
+    li = fi - start
+    _add_gradient(wk.grad, fi, bd.b, oi, si, cols_i, gs)
+    _add_block(wk.hess, n_size, base, bd.b, oi, si, cols_i, li, oi, si, cols_i, li, hs)
+    if oj >= 0:
+        fj = bd.flat_index[oj, 0]
+        lj = fj - start
+        _add_gradient(wk.grad, fj, bd.b, oj, sj, cols_j, -gs)
+        _add_block(wk.hess, n_size, base, bd.b, oj, sj, cols_j, lj, oj, sj, cols_j, lj, hs)
+        _add_block(wk.hess, n_size, base, bd.b, oi, si, cols_i, li, oj, sj, cols_j, lj, -hs)
+        _add_block(wk.hess, n_size, base, bd.b, oj, sj, cols_j, lj, oi, si, cols_i, li, -hs)
+
+
+@wp.func
+def _set_trial(bd: Bodies, wk: Work, isl_info: Island, isl: int, mode: int):
+    """The trial point ``q + alpha dq`` of island ``isl`` loaded for an evaluation of ``mode``."""
+    n_size = bd.island_size
+    start = isl * n_size
+    alpha = isl_info.alpha[isl]
+    for r in range(n_size):
+        wk.trial_q[start + r] = wk.q[start + r] + alpha * wk.dq[start + r]
+    _load_state(bd, wk.trial_q, wk.tm, isl)
+    isl_info.mode[isl] = mode
+    isl_info.phase[isl] = SEARCH
+    isl_info.searching[0] = 1
+
+
+@wp.kernel
+def direction_kernel(bd: Bodies, wk: Work, isl_info: Island, threshold: wp.array(dtype=wp.float64),
+                     trust_m: wp.array(dtype=wp.float64)):  # fmt: skip
+    """Islands in EVALUATE (just evaluated) or HAVE: the Newton update (Cholesky, with the 1e-10 relative ridge
+    where needed; hand-back where the matrix stays indefinite or a value is not finite), then the start of
+    :func:`data_gen.sim.fused_newton._take_update`: trust limit, converged shortcut, slope, first trial (with
+    derivatives)."""
+    isl = wp.tid()
+    phase = isl_info.phase[isl]
+    if phase != EVALUATE and phase != HAVE:
+        return
+    n_size = bd.island_size
+    start = isl * n_size
+    if phase == EVALUATE:
+        isl_info.value[isl] = isl_info.total[isl]
+    value = isl_info.value[isl]
+    finite = int(1)
+    biggest = _ZERO
+    for r in range(n_size):
+        if not wp.isfinite(wk.grad[start + r]):
+            finite = int(0)
+        biggest = wp.max(biggest, wp.abs(wk.hess[start * n_size + r * n_size + r]))
+    if finite == 0 or not wp.isfinite(value):
+        wk.stats[isl, STATUS] = NEEDS_FALLBACK
+        isl_info.phase[isl] = DONE
+        return
+    if _cholesky(wk.hess, wk.chol, wk.chol4, wk.first, isl, n_size, _ZERO) == 0:
+        if _cholesky(wk.hess, wk.chol, wk.chol4, wk.first, isl, n_size, wp.float64(1e-10) * biggest) == 0:
+            wk.stats[isl, STATUS] = NEEDS_FALLBACK
+            isl_info.phase[isl] = DONE
+            return
+    _newton_direction(wk.chol, wk.chol4, wk.first, wk.grad, wk.dq, wk.dq4, isl, n_size)
+    wk.stats[isl, ITERATIONS] += 1
+    mass, motion = _update_norms(bd, wk.dq, isl)
+    alpha = wp.min(trust_m[isl] / wp.max(motion, wp.float64(1e-300)), _ONE)
+    if alpha < _ONE:
+        wk.stats[isl, TRUST_LIMITED] += 1
+    if alpha >= _ONE and mass <= threshold[isl]:  # already below the tolerance: taken whole, converged
+        for r in range(n_size):
+            wk.q[start + r] = wk.q[start + r] + wk.dq[start + r]
+        wk.stats[isl, CONVERGED] = 1
+        isl_info.phase[isl] = DONE
+        return
+    slope = _ZERO
+    for r in range(n_size):
+        slope = slope + wk.grad[start + r] * wk.dq[start + r]
+    isl_info.slope[isl] = slope
+    isl_info.mass[isl] = mass
+    isl_info.alpha[isl] = alpha
+    isl_info.trial[isl] = 0
+    wk.stats[isl, EVALUATIONS_WITH_DERIVATIVES] += 1
+    _set_trial(bd, wk, isl_info, isl, DERIVATIVES)
+
+
+@wp.kernel
+def decide_kernel(bd: Bodies, wk: Work, isl_info: Island, threshold: wp.array(dtype=wp.float64),
+                  line_search_steps: int):  # fmt: skip
+    """Islands in SEARCH: the Armijo test of the trial just evaluated (plain decrease for the extra halvings),
+    then the accepted point's convergence test, or the next halving."""
+    isl = wp.tid()
+    if isl_info.phase[isl] != SEARCH:
+        return
+    t = isl_info.trial[isl]
+    trial = isl_info.total[isl]
+    value = isl_info.value[isl]
+    alpha = isl_info.alpha[isl]
+    ok = int(0)
+    if t < line_search_steps:
+        if trial <= value + wp.float64(ARMIJO_C) * alpha * isl_info.slope[isl] + wp.float64(1e-14) * wp.abs(value):
+            ok = int(1)
+    elif trial < value:
+        ok = int(1)
+        wk.stats[isl, LINE_SEARCH_EXTENDED] += 1
+    isl_info.mode[isl] = NOTHING
+    if ok != 0:
+        n_size = bd.island_size
+        start = isl * n_size
+        for r in range(n_size):
+            wk.q[start + r] = wk.trial_q[start + r]
+        if alpha * isl_info.mass[isl] <= threshold[isl]:
+            wk.stats[isl, CONVERGED] = 1
+            isl_info.phase[isl] = DONE
+        elif t == 0:  # the first trial was evaluated with derivatives: the next iteration starts from them
+            isl_info.value[isl] = trial
+            isl_info.phase[isl] = HAVE
+        else:
+            isl_info.phase[isl] = EVALUATE
+        return
+    if t + 1 >= line_search_steps + EXTRA_HALVINGS:  # no decrease along dq: stopped where it is, unconverged
+        wk.stats[isl, LINE_SEARCH_FAILURES] += 1
+        isl_info.phase[isl] = DONE
+        return
+    isl_info.alpha[isl] = wp.float64(0.5) * alpha
+    isl_info.trial[isl] = t + 1
+    wk.stats[isl, EVALUATIONS] += 1
+    _set_trial(bd, wk, isl_info, isl, VALUE)
+
+
+@wp.kernel
+def iterating_kernel(isl_info: Island):
+    """Sets ``iterating[0]`` when island ``isl`` is not DONE (the outer loop's condition)."""
+    isl = wp.tid()
+    if isl_info.phase[isl] != DONE:
+        isl_info.iterating[0] = 1
+
+
+class DeviceNewton:
+    """:meth:`FusedNewton.solve` as a schedule of launches with a thread per element (see the module docstring),
+    on ``fused``'s device, model, step data and buffers."""
+
+    def __init__(self, fused: FusedNewton) -> None:
+        self.fused = fused
+        self.device = fused.device
+        self._info: Island | None = None
+        self._info_key: tuple | None = None
+
+    def _island_info(self) -> Island:
+        """The per-island arrays for the fused workspace's grouping now (remade when it changed)."""
+        f = self.fused
+        n_isl = f.shape[0]
+        key = (n_isl, id(f.island_of))
+        if self._info is not None and self._info_key == key:
+            return self._info
+        like = dict(dtype=torch.float64, device=f.q.device)
+        ints = dict(dtype=torch.int32, device=f.q.device)
+        self._tensors = {
+            "phase": torch.zeros(n_isl, **ints), "mode": torch.zeros(n_isl, **ints),
+            "object_island": f.island_of.to(**ints).contiguous(), "value": torch.zeros(n_isl, **like),
+            "total": torch.zeros(n_isl, **like), "alpha": torch.zeros(n_isl, **like), "slope": torch.zeros(n_isl, **like),
+            "mass": torch.zeros(n_isl, **like), "trial": torch.zeros(n_isl, **ints),
+            "iterating": torch.zeros(1, **ints), "searching": torch.zeros(1, **ints),
+        }  # fmt: skip
+        info = Island()
+        for name, tensor in self._tensors.items():
+            setattr(info, name, _wp(tensor))
+        self._info, self._info_key = info, key
+        return info
+
+    def _launch_terms(self, st: StepData, info: Island) -> None:
+        """The term launches at the state each island has loaded (those whose mode is not NOTHING)."""
+        f = self.fused
+        n_isl, size = f.shape
+        n, num_points = f._keep["cub_volume"].shape
+        num_spheres = f._keep["radius"].shape[1]
+        bd, sc, wk, device = f.bodies, f.scene, f.work, self.device
+        wp.launch(clear_kernel, dim=(n_isl, size, size), device=device, inputs=[bd, wk, info])
+        wp.launch(inertia_kernel, dim=n, device=device, inputs=[bd, st, wk, info])
+        wp.launch(elastic_kernel, dim=(n, num_points), device=device, inputs=[bd, st, wk, info])
+        wp.launch(scene_kernel, dim=(n, num_spheres), device=device, inputs=[bd, sc, st, wk, info])
+        if st.num_pairs:
+            wp.launch(pairs_kernel, dim=st.num_pairs, device=device, inputs=[bd, st, wk, info])
+
+    def evaluate(self, objective, q: torch.Tensor,
+                 derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:  # fmt: skip
+        """``objective`` per island (n_isl,) at ``q`` (n_isl, N) summed by the term launches; with ``derivatives``
+        the gradient (n_isl, N) and Newton matrix (n_isl, N, N) (copies): what :meth:`FusedNewton.evaluate`
+        returns, to round-off."""
+        f = self.fused
+        n_isl, size = f.shape
+        st = f._step_data(objective)
+        f.q.copy_(q.reshape(-1))
+        info = self._island_info()
+        wp.launch(start_kernel, dim=n_isl, device=self.device, inputs=[
+            f.bodies, f.scene, st, f.work, info, *f._limits, 0, wp.float64(1.0), wp.float64(f._gravity_norm),
+        ])  # fmt: skip (the scene margins the sphere launch reads)
+        mode = DERIVATIVES if derivatives else VALUE
+        wp.launch(load_kernel, dim=n_isl, device=self.device, inputs=[f.bodies, f.work, info, int(mode)])
+        self._launch_terms(st, info)
+        value = self._tensors["total"].clone()
+        if not derivatives:
+            return value, None, None
+        return value, f.grad.view(n_isl, size).clone(), f.hess.view(n_isl, size, size).clone()
+
+    def solve(self, objective, q0: torch.Tensor, scale: torch.Tensor | None, trust_m: torch.Tensor | None,
+              settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
+        """What :meth:`FusedNewton.solve` returns for the same arguments (to round-off), or None where an island
+        needs ``minimise``."""
+        f = self.fused
+        n_isl, size = f.shape
+        st = f._step_data(objective)
+        f.q.copy_(q0.reshape(-1))
+        given = f._given_limits(scale, trust_m, settings)
+        info = self._island_info()
+        bd, sc, wk = f.bodies, f.scene, f.work
+        threshold, trust = f._limits
+        device = self.device
+        wp.launch(start_kernel, dim=n_isl, device=device, inputs=[
+            bd, sc, st, wk, info, threshold, trust, int(given), wp.float64(settings.tolerance),
+            wp.float64(f._gravity_norm),
+        ])  # fmt: skip
+
+        def search() -> None:  # one line-search trial of every searching island
+            self._launch_terms(st, info)
+            wp.launch(decide_kernel, dim=n_isl, device=device,
+                      inputs=[bd, wk, info, threshold, int(settings.line_search_steps)])  # fmt: skip
+
+        def iteration() -> None:  # one Newton iteration of every island not DONE
+            wp.launch(prepare_kernel, dim=n_isl, device=device, inputs=[bd, wk, info, int(settings.iterations)])
+            self._launch_terms(st, info)
+            wp.launch(direction_kernel, dim=n_isl, device=device, inputs=[bd, wk, info, threshold, trust])
+            wp.capture_while(info.searching, search)
+            wp.launch(iterating_kernel, dim=n_isl, device=device, inputs=[info])
+
+        wp.capture_while(info.iterating, iteration)
+        if bool((f.stats[:, STATUS] != SOLVED).any()):
+            return None
+        return f._result()
+
+
+__all__ = ["DeviceNewton"]

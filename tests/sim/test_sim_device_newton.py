@@ -1,0 +1,124 @@
+"""The thread-per-element Newton schedule (:mod:`data_gen.sim.device_newton`) against the fused kernel it mirrors:
+the same objective, gradient and matrix from its term launches (round-off), the same iterations, counters and
+results on recorded steps and on islands of deformable objects, the same hand-back, and bit-for-bit repeats
+on the CPU."""
+
+import itertools
+
+import pytest
+import torch
+
+from data_gen.sim.device_newton import DeviceNewton
+from data_gen.sim.fused_newton import FusedNewton
+from data_gen.sim.newton import NewtonSettings
+from tests.sim.test_sim_fused_newton import IDS, SCENES, _captured_solves, _objective
+
+D = torch.float64
+
+
+@pytest.mark.parametrize("scene", SCENES, ids=IDS)
+@pytest.mark.parametrize("handles", [(1, 3, 2), (1, 1, 1)], ids=["mixed", "one-handle"])
+def test_term_launches_equal_the_fused_evaluation(scene, handles):
+    """Two islands (pairs inside one and against a frozen partner), deformable and one-handle objects, on the
+    ground, a box and a point cloud; at the start, a perturbed state and one lowered into the scene (spheres
+    the scene test must not skip), where some elastic blocks are projected."""
+    objective, fused, q0 = _objective(scene, handles=handles)
+    device = DeviceNewton(fused)
+    layout = objective.layout
+    lowered = layout.to_objects(q0).clone()
+    lowered[:, 2, 3] -= 0.05
+    gen = torch.Generator().manual_seed(7)
+    projected = False
+    for q in (q0, q0 + 2e-3 * torch.randn(q0.shape, generator=gen, dtype=D), layout.to_islands(lowered)):
+        value, grad, hess, flagged = fused.evaluate(objective, q, True)
+        projected |= bool(flagged.any())
+        d_value, d_grad, d_hess = device.evaluate(objective, q, True)
+        torch.testing.assert_close(d_value, value, rtol=1e-11, atol=0.0)
+        torch.testing.assert_close(d_grad, grad, rtol=0.0, atol=1e-10 * float(grad.abs().amax()))
+        torch.testing.assert_close(d_hess, hess, rtol=0.0, atol=1e-10 * float(hess.abs().amax()))
+        assert float((d_hess - d_hess.mT).abs().amax()) <= 1e-14 * float(hess.abs().amax())  # both triangles
+        only, no_grad, _ = device.evaluate(objective, q, False)
+        assert no_grad is None
+        torch.testing.assert_close(only, value, rtol=1e-11, atol=0.0)
+    assert projected  # the strained states exercise the projection of elastic blocks
+
+
+def _same_solve(objective, fused_result, device_result, settings, scale, same_path: bool = True, gap_tol: float = 1e-6):
+    """The same convergence and the same end to within ``gap_tol`` of the tolerance (mass norm); with
+    ``same_path`` also the same iterations and every counter."""
+    assert device_result is not None, "the schedule handed back a step the fused kernel solved"
+    assert torch.equal(device_result.converged, fused_result.converged)
+    if same_path:
+        assert torch.equal(device_result.iterations, fused_result.iterations)
+        assert device_result.counters == fused_result.counters
+    gap = objective.mass_norm(device_result.q - fused_result.q)
+    assert bool((gap <= gap_tol * settings.tolerance * scale).all()), (gap / (settings.tolerance * scale)).tolist()
+
+
+def test_schedule_takes_the_fused_kernels_path_on_recorded_steps():
+    """Real steps of a thrown stack of one-handle boxes (landing, pairs, friction); every third with a tiny
+    trust radius (updates cut by it). Checked against the fused kernel, itself checked against ``minimise``."""
+    solves = _captured_solves(throw=True)
+    assert len(solves) >= 20
+    trust_limited = line_searched = 0
+    for (objective, q0, scale, trust, settings), factor in zip(solves, itertools.cycle([1.0, 1.0, 0.005])):
+        trust = factor * trust
+        fused = FusedNewton(objective.model, objective.layout, objective.contact, objective.island_mass_kg,
+                            objective.min_median_radius_m)  # fmt: skip
+        ref = fused.solve(objective, q0, scale, trust, settings)
+        ref = type(ref)(ref.q.clone(), ref.iterations, ref.converged, dict(ref.counters))  # (q: the workspace's)
+        out = DeviceNewton(fused).solve(objective, q0, scale, trust, settings)
+        _same_solve(objective, ref, out, settings, scale)
+        trust_limited += out.counters["trust_limited_steps"]
+        line_searched += out.counters["evaluations"]
+    assert trust_limited > 0 and line_searched > 0  # both the trust limit and halvings were exercised
+
+
+@pytest.mark.parametrize("scene", SCENES, ids=IDS)
+def test_schedule_solves_islands_of_deformable_objects_as_the_fused_kernel(scene):
+    """Two islands of 1-, 3- and 2-handle objects moving fast into the scene (40-160 trust-limited iterations,
+    line searches): each island stops in its own iteration (the schedule runs until the last is done), both
+    converge where the fused kernel's do, to 0.05 of the tolerance (the bound the fused kernel meets against
+    ``minimise``: over a hundred iterations round-off may move a decision), with the kernel's own limits (no
+    scale or trust given) and with given ones."""
+    objective, fused, q0 = _objective(scene, speed=1.0)
+    settings = NewtonSettings(iterations=300, tolerance=1e-6, line_search_steps=8)
+    ref = fused.solve(objective, q0, None, None, settings)
+    assert ref is not None and bool(ref.converged.all())
+    ref = type(ref)(ref.q.clone(), ref.iterations, ref.converged, dict(ref.counters))
+    assert int(ref.iterations.min()) >= 30 and ref.counters["trust_limited_steps"] > 0 and ref.counters["evaluations"] > 0
+    scale = fused.threshold.clone() / settings.tolerance
+    trust = fused.trust.clone()
+    device = DeviceNewton(fused)
+    out = device.solve(objective, q0, None, None, settings)
+    _same_solve(objective, ref, out, settings, scale, same_path=False, gap_tol=0.05)
+    assert bool(((out.iterations - ref.iterations).abs() <= 0.1 * ref.iterations).all())
+    given = device.solve(objective, q0, scale, trust, settings)
+    _same_solve(objective, ref, given, settings, scale, same_path=False, gap_tol=0.05)
+    # the CPU's launches run their threads in order: a repeat is the same bits
+    again = device.solve(objective, q0, scale, trust, settings)
+    assert torch.equal(again.q, given.q)
+
+
+def test_iteration_cap_stops_islands_unconverged_as_the_fused_kernel():
+    objective, fused, q0 = _objective(SCENES[0], speed=1.0)
+    settings = NewtonSettings(iterations=1, tolerance=1e-12, line_search_steps=8)
+    ref = fused.solve(objective, q0, None, None, settings)
+    ref = type(ref)(ref.q.clone(), ref.iterations, ref.converged, dict(ref.counters))
+    assert ref.counters["unconverged_solves"] > 0
+    out = DeviceNewton(fused).solve(objective, q0, None, None, settings)
+    scale = fused.threshold / settings.tolerance
+    _same_solve(objective, ref, out, settings, scale, gap_tol=1.0)  # (tolerance 1e-12: round-off of one update)
+    assert bool((out.iterations == 1).all())
+
+
+def test_schedule_hands_back_a_non_finite_state():
+    objective, q0, scale, trust, settings = _captured_solves(1)[0]
+    fused = FusedNewton(objective.model, objective.layout, objective.contact, objective.island_mass_kg,
+                        objective.min_median_radius_m)  # fmt: skip
+    device = DeviceNewton(fused)
+    assert device.solve(objective, q0, scale, trust, settings) is not None
+    bad = q0.clone()
+    bad[0, 0] = float("nan")
+    assert device.solve(objective, bad, scale, trust, settings) is None
+    assert fused.solve(objective, bad, scale, trust, settings) is None
