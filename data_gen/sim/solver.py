@@ -26,7 +26,8 @@ every elastic block projected), ``substep_cap_raised``, energy evaluations, ``fu
 solves done by :class:`~data_gen.sim.fused_newton.FusedNewton`), ``fused_handed_back`` (group solves it
 handed back to :func:`minimise`), ``split_island_solves`` (deformable island solves done by
 :meth:`~data_gen.sim.fused_newton.FusedNewton.solve_split`) and ``split_handed_back`` (group solves it handed
-back).
+back), ``device_island_solves`` / ``device_handed_back`` (the same for :class:`~data_gen.sim.device_newton.DeviceNewton`,
+with ``device_newton``).
 
 Sleeping: an awake object whose fastest cubature point moves slower than ``sleep_speed_m_s`` while it is
 supported (in contact) for ``sleep_steps`` consecutive steps is frozen (no Newton work, its contact
@@ -70,6 +71,7 @@ from data_gen.sim.presets import QualityPreset
 from data_gen.sim.reduced import DTYPE, ReducedObject
 from data_gen.sim.state import State
 from data_gen.sim.static_scene import StaticScene
+from data_gen.sim.device_newton import DeviceNewton
 from data_gen.sim.fused_newton import FusedNewton, SubstepResult
 from data_gen.sim.kept_elastic import KeptElasticMatrices
 from data_gen.sim.step_objective import (
@@ -313,6 +315,9 @@ class ImplicitEulerSolver:
         device: warp device of the broad phase.
         fused_newton: solve groups of one-handle objects with :class:`~data_gen.sim.fused_newton.FusedNewton`
             (one warp launch per solve) instead of :func:`~data_gen.sim.newton.minimise`.
+        device_newton: with ``fused_newton``, solve those groups with :class:`~data_gen.sim.device_newton.DeviceNewton`
+            instead (the same solve as launches with a thread per element: the GPU's shape), one sub-step at a
+            time (the fused sub-step launch is not used).
     """
 
     def __init__(
@@ -325,6 +330,7 @@ class ImplicitEulerSolver:
         dt_s: float,
         device: str = "cpu",
         fused_newton: bool = True,
+        device_newton: bool = False,
     ) -> None:
         if state.num_objects != len(bodies):
             raise ValueError(f"state holds {state.num_objects} objects for {len(bodies)} bodies")
@@ -335,6 +341,7 @@ class ImplicitEulerSolver:
         self.preset = preset
         self.dt = float(dt_s)
         self.fused_newton = bool(fused_newton)
+        self.device_newton = self.fused_newton and bool(device_newton)
         self.broad_phase = BroadPhase([b.contact for b in bodies], float(self.gravity.norm()), device)
         self._cubature_gather = CubatureGather([b.contact for b in bodies])
         self.step_index = 0
@@ -384,6 +391,8 @@ class ImplicitEulerSolver:
                 "fused_handed_back",
                 "split_island_solves",
                 "split_handed_back",
+                "device_island_solves",
+                "device_handed_back",
                 "elastic_matrices_formed",
                 "elastic_matrices_reused",
                 "elastic_matrices_refreshed",
@@ -434,7 +443,7 @@ class ImplicitEulerSolver:
         for island, num_sub in zip(islands, self._island_substeps(contacts, positions, speeds)):
             # islands that need the same sub-steps: one solve; with the fused solver, islands of one-handle
             # objects only (FusedNewton's) apart from the others
-            rigid = self.fused_newton and all(self._one_handle[k] for k in island)
+            rigid = self.fused_newton and not self.device_newton and all(self._one_handle[k] for k in island)
             by_substeps.setdefault((num_sub, rigid), []).append(island)
         keys = sorted(by_substeps)
         # the islands of one-handle objects, whatever their sub-steps, in one fused launch; each sub-step
@@ -859,7 +868,12 @@ class ImplicitEulerSolver:
         fused = objective.workspace.fused if self.fused_newton else None
         split = objective.evaluator if fused is None and self.preset.lagged_elastic_hessian else None
         result, kind = None, None
-        if fused is not None:
+        if fused is not None and self.device_newton:
+            device = getattr(fused, "device_newton", None)
+            if device is None:
+                device = fused.device_newton = DeviceNewton(fused)  # (kept with its workspace)
+            result, kind = device.solve(objective, q0, None, None, settings), "device"
+        elif fused is not None:
             result, kind = fused.solve(objective, q0, None, None, settings), "fused"
         elif split is not None:
             result, kind = split.solve_split(objective, q0, None, None, settings), "split"

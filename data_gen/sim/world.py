@@ -118,6 +118,12 @@ class Simulator:
         num_threads: torch intra-op threads while stepping (restored afterwards).  The reduced
             system is small (tens to hundreds of DOFs per object), so 1 thread is fastest and avoids
             oversubscription when several simulations run side by side.
+        fused_newton: solve islands with the fused Newton kernel (:mod:`data_gen.sim.fused_newton`); False: the
+            batched :func:`~data_gen.sim.newton.minimise` (the reference path).
+        training_threads: skinning bases trained side by side.
+        device_newton: solve the one-handle islands with :class:`~data_gen.sim.device_newton.DeviceNewton` (the
+            fused solve as launches with a thread per element, the GPU's shape) instead of the fused kernel's
+            sub-step launch: the same results to round-off; slower on the CPU.
     """
 
     def __init__(
@@ -132,12 +138,14 @@ class Simulator:
         num_threads: int = 1,
         fused_newton: bool = True,
         training_threads: int = 1,
+        device_newton: bool = False,
     ) -> None:
         self.num_threads = int(num_threads)
         if not isinstance(training_threads, (int, np.integer)) or training_threads < 1:
             raise ValueError(f"training_threads={training_threads!r} must be an integer >= 1")
         self.training_threads = int(training_threads)
         self.fused_newton = bool(fused_newton)
+        self.device_newton = bool(device_newton)
         self.scene = static_scene
         self.preset = load_preset(preset) if isinstance(preset, str) else preset
         self.gravity = np.asarray(gravity_m_s2, dtype=np.float64)
@@ -278,7 +286,7 @@ class Simulator:
         state = State.awake([p.q0.clone() for p in self.prepared], [p.qdot0.clone() for p in self.prepared])
         solver = ImplicitEulerSolver(
             bodies, state, self.scene, self.gravity, self.preset, dt, device=self.device,
-            fused_newton=self.fused_newton,
+            fused_newton=self.fused_newton, device_newton=self.device_newton,
         )
         recorder = FrameRecorder(
             [b.name for b in bodies],
