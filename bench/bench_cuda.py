@@ -18,7 +18,16 @@ same code against itself (a dry run of the script: every comparison must then be
    again the CPU (``num_threads`` = the machine's cores): every contract map compared, and frames per second of
    simulation, of rendering on each device and of the two together.
 
-4. **A dataset sequence** (``--sequences dataset``): what a generation run renders by default at the paper's 1000 x 562
+4. **The solver's one-handle islands on the device** (``DeviceNewton``, ``Simulator(device_newton=True)``): the
+   ``bench_peers`` pile of ``--solver-boxes`` stiff boxes (10; 3 with ``--quick``), 1 s at 25 FPS, ``standard``,
+   simulated by the fused kernel on the CPU and by the thread-per-element schedule on the device (the model and
+   each step's data copied there, one CUDA graph per solve, the state back once per solve). Times, frames per
+   second, counters, the piles' checks (no tunnelling, resting heights), and how far the final centres differ (a
+   toppling pile amplifies round-off: the CPU's own paths differ by centimetres after 1 s, see
+   ``docs/sim_speed_history.md``). Fails where the device hands a solve back, a box tunnels, or a value is
+   not finite.
+
+5. **A dataset sequence** (``--sequences dataset``): what a generation run renders by default at the paper's 1000 x 562
    (5 objects dropped on the ``table`` layout, ``draft``, ``generate.yaml``'s 3,000 splats per object), the same
    comparisons and times: whether a GPU pays for the data researchers generate.
 
@@ -59,6 +68,7 @@ from data_gen.sim import KERNEL_MODULES  # noqa: E402
 from data_gen.sim.contact import PairFinder  # noqa: E402
 from data_gen.sim.presets import load_preset  # noqa: E402
 from data_gen.sim.threads import torch_threads  # noqa: E402
+from data_gen.sim.world import SimulationError  # noqa: E402
 from newtphys import schema  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,6 +97,48 @@ def _timed(fn, device: str, reps: int) -> tuple[float, object]:
         _sync(device)
         times.append(time.perf_counter() - t0)
     return float(np.median(times)), out
+
+
+# --------------------------------------------------------------------------------------------- the solver
+def check_solver(device: str, boxes: int) -> dict:
+    """The ``bench_peers`` pile of ``boxes`` stiff boxes, 1 s: the fused kernel on the CPU against
+    :class:`~data_gen.sim.device_newton.DeviceNewton` on ``device`` (each run once untimed first: kernel loading
+    and compilation)."""
+    import bench_peers
+
+    scene = bench_peers.PeerScene(f"stiff_{boxes}", boxes, 1e9, "standard")
+    runs = {}
+    for name, kwargs in (("cpu_fused", {}), ("device", {"device": device, "device_newton": True})):
+        try:
+            bench_peers.run_newtphys(scene, **kwargs)
+            row = bench_peers.run_newtphys(scene, **kwargs)
+        except SimulationError as err:  # (a non-finite value names its object)
+            runs[name] = {"error": str(err)}
+            continue
+        com = np.asarray(row["final_com_m"])
+        frames = int(round(bench_peers.DURATION_S * bench_peers.FPS)) + 1
+        runs[name] = {"wall_s": row["wall_s"], "cpu_s": row["cpu_s"], "fps": frames / row["wall_s"],
+                      "newton_iterations": row["newton_iterations"], "counters": row["counters"],
+                      "checks": bench_peers.pile_checks(com), "final_com_m": com.tolist()}  # fmt: skip
+    out = {"boxes": boxes, "runs": runs}
+    if all("error" not in r for r in runs.values()):
+        a, b = (np.asarray(runs[k]["final_com_m"]) for k in ("cpu_fused", "device"))
+        out["final_com_max_abs_diff_m"] = float(np.abs(a - b).max())
+    return out
+
+
+def solver_failures(solver: dict) -> list[str]:
+    """What fails the solver check: an error, a hand-back to ``minimise``, a tunnelled box, a non-finite centre."""
+    out = []
+    for name, run in solver["runs"].items():
+        if "error" in run:
+            out.append(f"solver {name}: {run['error']}")
+            continue
+        if run["checks"]["tunnelled"] or not np.all(np.isfinite(run["final_com_m"])):
+            out.append(f"solver {name}: tunnelled or not finite")
+        if name == "device" and (run["counters"]["device_handed_back"] or not run["counters"]["device_island_solves"]):
+            out.append(f"solver {name}: solves handed back or none on the device")
+    return out
 
 
 # --------------------------------------------------------------------------------------------- 1. broad phase
@@ -344,7 +396,8 @@ def main() -> None:
     ap.add_argument("--gaussians", type=int, default=None, help="surface splats per object")
     ap.add_argument("--size", type=int, default=None, help="image side, px")
     ap.add_argument("--frames", type=int, default=None)
-    ap.add_argument("--skip", nargs="*", default=[], choices=["pairs", "raster", "sequence"])
+    ap.add_argument("--skip", nargs="*", default=[], choices=["pairs", "raster", "solver", "sequence"])
+    ap.add_argument("--solver-boxes", type=int, default=None, help="stiff boxes of the solver check's pile")
     ap.add_argument("--sequences", nargs="+", default=["issue", "dataset"], choices=["issue", "dataset"],
                     help="issue: the issue's 10-object / 10^6-splat / 512^2 sequence; dataset: a generation run's "
                     "default sequence at 1000 x 562")  # fmt: skip
@@ -354,8 +407,8 @@ def main() -> None:
                     "compared; the poses still are)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "cuda.json")
     args = ap.parse_args()
-    quick = dict(objects=3, cubature=64, gaussians=5_000, size=128, frames=6)
-    full = dict(objects=10, cubature=1000, gaussians=100_000, size=512, frames=25)
+    quick = dict(objects=3, cubature=64, gaussians=5_000, size=128, frames=6, solver_boxes=3)
+    full = dict(objects=10, cubature=1000, gaussians=100_000, size=512, frames=25, solver_boxes=10)
     for k, v in (quick if args.quick else full).items():
         if getattr(args, k) is None:
             setattr(args, k, v)
@@ -396,6 +449,23 @@ def main() -> None:
                   f"RGB max diff {r['rgb_max_abs_diff']:.2e} (mean {r['rgb_mean_abs_diff']:.2e})",
                   flush=True)  # fmt: skip
         print(f"[raster] ({time.perf_counter() - t:.0f} s)", flush=True)
+    if "solver" not in args.skip:
+        t = time.perf_counter()
+        report["solver"] = sol = check_solver(device, args.solver_boxes)
+        save()
+        for name, run in sol["runs"].items():
+            if "error" in run:
+                print(f"[solver] {name}: {run['error']}", flush=True)
+                continue
+            c = run["counters"]
+            print(f"[solver] {name}: {sol['boxes']} stiff boxes, 1 s: {run['wall_s']:.2f} s wall ({run['fps']:.1f} FPS), "
+                  f"{run['newton_iterations']} Newton iterations, island solves {c['island_solves']} (device "
+                  f"{c['device_island_solves']}, handed back {c['device_handed_back']}), tunnelled "
+                  f"{run['checks']['tunnelled']}", flush=True)  # fmt: skip
+        if "final_com_max_abs_diff_m" in sol:
+            print(f"[solver] final centres differ by at most {sol['final_com_max_abs_diff_m']:.3g} m "
+                  f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
+        failures += solver_failures(sol)
     if "sequence" not in args.skip:
         report["sequences"] = {}
         for spec in sequence_specs(args):

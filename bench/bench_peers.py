@@ -83,18 +83,21 @@ def placements(count: int) -> list[tuple[float, float, float]]:
     return out
 
 
-def newtphys_simulator(scene: PeerScene, seed: int = 0, fused_newton: bool = True) -> Simulator:
-    """NewtPhys's simulator of ``scene``: its boxes, preset and seed, one thread."""
+def newtphys_simulator(scene: PeerScene, seed: int = 0, fused_newton: bool = True, device: str = "cpu",
+                       device_newton: bool = False) -> Simulator:  # fmt: skip
+    """NewtPhys's simulator of ``scene``: its boxes, preset and seed, one thread; ``device`` and ``device_newton``
+    as :class:`Simulator`'s (``bench_cuda.py`` runs the one-handle islands' solves on a GPU)."""
     specs = [
         _box(f"box_{k}", HALF_M, scene.young_pa, pos, seed=10, training=QUICK_TRAINING, rho=DENSITY)
         for k, pos in enumerate(placements(scene.count))
     ]
     return Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), scene.quality, seed=seed, num_threads=1,
-                     fused_newton=fused_newton)  # fmt: skip
+                     fused_newton=fused_newton, device=device, device_newton=device_newton)  # fmt: skip
 
 
-def run_newtphys(scene: PeerScene, seed: int = 0, fused_newton: bool = True) -> dict:
-    sim = newtphys_simulator(scene, seed, fused_newton)
+def run_newtphys(scene: PeerScene, seed: int = 0, fused_newton: bool = True, device: str = "cpu",
+                 device_newton: bool = False) -> dict:  # fmt: skip
+    sim = newtphys_simulator(scene, seed, fused_newton, device, device_newton)
     frames = int(round(DURATION_S * FPS)) + 1
     t0, c0 = time.perf_counter(), time.process_time()
     res = sim.run(frames, fps=FPS)

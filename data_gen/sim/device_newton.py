@@ -27,6 +27,8 @@ On CUDA the atomic adds make the sums' order, and so the last bits, vary between
 
 from __future__ import annotations
 
+import logging
+
 import torch
 import warp as wp
 
@@ -58,11 +60,12 @@ from data_gen.sim.fused_newton import (
     _scene_sphere,
     _solve_start,
     _update_norms,
-    _wp,
+    scene_args,
 )
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
 
 wp.set_module_options({"enable_backward": False})
+logger = logging.getLogger(__name__)
 
 _ZERO = wp.constant(wp.float64(0.0))
 _ONE = wp.constant(wp.float64(1.0))
@@ -445,45 +448,117 @@ def iterating_kernel(isl_info: Island):
         isl_info.iterating[0] = 1
 
 
+class StructMirror:
+    """Copies, on another warp device, of the arrays a warp struct instance holds: allocated at first use (again
+    when a source array changes shape or type) and refreshed by copy. Fields that share memory in the source
+    (an array and its four-at-a-time view: ``hess`` / ``hess4``) share it in the copy."""
+
+    def __init__(self, device) -> None:
+        self.device = wp.get_device(device)
+        self._buffers: dict[tuple[str, str], wp.array] = {}
+
+    def copy(self, tag: str, source, struct_type, refresh: bool = True):
+        """A ``struct_type`` instance whose arrays are this device's copies of ``source``'s (filled from them with
+        ``refresh``, else only allocated) and whose other fields are ``source``'s. ``tag`` names the source."""
+        out = struct_type()
+        by_address: dict[int, wp.array] = {}
+        for name in struct_type.vars:
+            value = getattr(source, name)
+            if not isinstance(value, wp.array):
+                setattr(out, name, value)
+                continue
+            shared = by_address.get(value.ptr) if value.ptr else None
+            if shared is not None:  # a view of a field already copied: the same view of its copy
+                setattr(out, name, wp.array(ptr=shared.ptr, dtype=value.dtype, shape=value.shape,
+                                            strides=value.strides, device=self.device))  # fmt: skip
+                continue
+            key = (tag, name)
+            buffer = self._buffers.get(key)
+            if buffer is None or buffer.shape != value.shape or buffer.dtype != value.dtype:
+                buffer = self._buffers[key] = wp.empty(value.shape, dtype=value.dtype, device=self.device)
+            if refresh and value.size:
+                wp.copy(buffer, value)
+            if value.ptr:
+                by_address[value.ptr] = buffer
+            setattr(out, name, buffer)
+        return out
+
+
 class DeviceNewton:
     """:meth:`FusedNewton.solve` as a schedule of launches with a thread per element (see the module docstring),
-    on ``fused``'s device, model, step data and buffers."""
+    on ``fused``'s model, step data and buffers.
 
-    def __init__(self, fused: FusedNewton) -> None:
+    With ``device`` (a warp device other than ``fused``'s, e.g. "cuda" next to a CPU workspace) the solve runs
+    there: the model is copied once, each solve's step data and start state are copied over, and the state and
+    counters come back when it ends; nothing crosses between its Newton iterations. With ``graph`` (CUDA) the
+    schedule is captured as one CUDA graph per solve, its loops as conditional nodes (CUDA 12.4+), and launched
+    once: no host read inside the solve at all."""
+
+    def __init__(self, fused: FusedNewton, device=None, graph: bool = True) -> None:
         self.fused = fused
-        self.device = fused.device
+        self.mirror = StructMirror(device) if device is not None else None
+        self.device = self.mirror.device if self.mirror is not None else wp.get_device(fused.device)
+        self.graph = bool(graph) and self.device.is_cuda
         self._info: Island | None = None
         self._info_key: tuple | None = None
+        self._bodies_key: tuple | None = None
+        self._scene: SceneArgs | None = None
 
     def _island_info(self) -> Island:
-        """The per-island arrays for the fused workspace's grouping now (remade when it changed)."""
+        """The per-island arrays for the fused workspace's grouping now (remade when it changed), on this
+        solver's device."""
         f = self.fused
         n_isl = f.shape[0]
         key = (n_isl, id(f.island_of))
         if self._info is not None and self._info_key == key:
             return self._info
-        like = dict(dtype=torch.float64, device=f.q.device)
-        ints = dict(dtype=torch.int32, device=f.q.device)
-        self._tensors = {
-            "phase": torch.zeros(n_isl, **ints), "mode": torch.zeros(n_isl, **ints),
-            "object_island": f.island_of.to(**ints).contiguous(), "value": torch.zeros(n_isl, **like),
-            "total": torch.zeros(n_isl, **like), "alpha": torch.zeros(n_isl, **like), "slope": torch.zeros(n_isl, **like),
-            "mass": torch.zeros(n_isl, **like), "trial": torch.zeros(n_isl, **ints),
-            "iterating": torch.zeros(1, **ints), "searching": torch.zeros(1, **ints),
-        }  # fmt: skip
         info = Island()
-        for name, tensor in self._tensors.items():
-            setattr(info, name, _wp(tensor))
+        for name in Island.vars:
+            dtype = wp.float64 if name in ("value", "total", "alpha", "slope", "mass") else wp.int32
+            count = 1 if name in ("iterating", "searching") else n_isl
+            setattr(info, name, wp.zeros(count, dtype=dtype, device=self.device))
+        info.object_island = wp.array(f.island_of.to(torch.int32).cpu().numpy(), dtype=wp.int32, device=self.device)
         self._info, self._info_key = info, key
         return info
 
-    def _launch_terms(self, st: StepData, info: Island) -> None:
+    def _structs(self, st: StepData) -> tuple[Bodies, SceneArgs, StepData, Work, wp.array, wp.array]:
+        """(bodies, scene, step data, work, threshold, trust) on this solver's device: the fused workspace's own,
+        or copies of them (the model's once per grouping, the step's and the work's at every solve)."""
+        f = self.fused
+        threshold, trust = f._limits
+        if self.mirror is None:
+            return f.bodies, f.scene, st, f.work, threshold, trust
+        m = self.mirror
+        key = (f.shape, id(f.island_of))
+        if self._bodies_key != key:
+            self._bodies = m.copy("bodies", f.bodies, Bodies)
+            self._bodies_key = key
+        if self._scene is None:
+            self._scene = scene_args(f.contact.scene, self.device.alias)
+        step = m.copy("step", st, StepData)
+        work = m.copy("work", f.work, Work)
+        limits = [m.copy(name, _limits_of(array), _Limits).values for name, array in (("threshold", threshold),
+                                                                                       ("trust", trust))]  # fmt: skip
+        return self._bodies, self._scene, step, work, limits[0], limits[1]
+
+    def _bring_back(self, step: StepData, work: Work, threshold: wp.array, trust: wp.array) -> None:
+        """What the solve wrote that the workspace's callers read, copied back to it: the state, the counters,
+        the limits, and the scratch its force evaluation reads (scene margins, motion bounds)."""
+        if self.mirror is None:
+            return
+        f = self.fused
+        st = f._step
+        for dst, src in ((f.work.q, work.q), (f.work.stats, work.stats), (f._limits[0], threshold),
+                         (f._limits[1], trust), (st.margin, step.margin), (st.moved, step.moved)):  # fmt: skip
+            wp.copy(dst, src)
+
+    def _launch_terms(self, bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, info: Island) -> None:
         """The term launches at the state each island has loaded (those whose mode is not NOTHING)."""
         f = self.fused
         n_isl, size = f.shape
         n, num_points = f._keep["cub_volume"].shape
         num_spheres = f._keep["radius"].shape[1]
-        bd, sc, wk, device = f.bodies, f.scene, f.work, self.device
+        device = self.device
         wp.launch(clear_kernel, dim=(n_isl, size, size), device=device, inputs=[bd, wk, info])
         wp.launch(inertia_kernel, dim=n, device=device, inputs=[bd, st, wk, info])
         wp.launch(elastic_kernel, dim=(n, num_points), device=device, inputs=[bd, st, wk, info])
@@ -494,58 +569,86 @@ class DeviceNewton:
     def evaluate(self, objective, q: torch.Tensor,
                  derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:  # fmt: skip
         """``objective`` per island (n_isl,) at ``q`` (n_isl, N) summed by the term launches; with ``derivatives``
-        the gradient (n_isl, N) and Newton matrix (n_isl, N, N) (copies): what :meth:`FusedNewton.evaluate`
-        returns, to round-off."""
+        the gradient (n_isl, N) and Newton matrix (n_isl, N, N) (copies, on the CPU): what
+        :meth:`FusedNewton.evaluate` returns, to round-off."""
         f = self.fused
         n_isl, size = f.shape
-        st = f._step_data(objective)
         f.q.copy_(q.reshape(-1))
+        bd, sc, st, wk, threshold, trust = self._structs(f._step_data(objective))
         info = self._island_info()
         wp.launch(start_kernel, dim=n_isl, device=self.device, inputs=[
-            f.bodies, f.scene, st, f.work, info, *f._limits, 0, wp.float64(1.0), wp.float64(f._gravity_norm),
+            bd, sc, st, wk, info, threshold, trust, 0, wp.float64(1.0), wp.float64(f._gravity_norm),
         ])  # fmt: skip (the scene margins the sphere launch reads)
         mode = DERIVATIVES if derivatives else VALUE
-        wp.launch(load_kernel, dim=n_isl, device=self.device, inputs=[f.bodies, f.work, info, int(mode)])
-        self._launch_terms(st, info)
-        value = self._tensors["total"].clone()
+        wp.launch(load_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info, int(mode)])
+        self._launch_terms(bd, sc, st, wk, info)
+        value = torch.as_tensor(info.total.numpy()).clone()
         if not derivatives:
             return value, None, None
-        return value, f.grad.view(n_isl, size).clone(), f.hess.view(n_isl, size, size).clone()
+        grad = torch.as_tensor(wk.grad.numpy()).view(n_isl, size).clone()
+        return value, grad, torch.as_tensor(wk.hess.numpy()).view(n_isl, size, size).clone()
 
     def solve(self, objective, q0: torch.Tensor, scale: torch.Tensor | None, trust_m: torch.Tensor | None,
               settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
         """What :meth:`FusedNewton.solve` returns for the same arguments (to round-off), or None where an island
         needs ``minimise``."""
         f = self.fused
-        n_isl, size = f.shape
-        st = f._step_data(objective)
+        n_isl = f.shape[0]
         f.q.copy_(q0.reshape(-1))
         given = f._given_limits(scale, trust_m, settings)
+        bd, sc, st, wk, threshold, trust = self._structs(f._step_data(objective))
         info = self._island_info()
-        bd, sc, wk = f.bodies, f.scene, f.work
-        threshold, trust = f._limits
         device = self.device
-        wp.launch(start_kernel, dim=n_isl, device=device, inputs=[
-            bd, sc, st, wk, info, threshold, trust, int(given), wp.float64(settings.tolerance),
-            wp.float64(f._gravity_norm),
-        ])  # fmt: skip
 
         def search() -> None:  # one line-search trial of every searching island
-            self._launch_terms(st, info)
+            self._launch_terms(bd, sc, st, wk, info)
             wp.launch(decide_kernel, dim=n_isl, device=device,
                       inputs=[bd, wk, info, threshold, int(settings.line_search_steps)])  # fmt: skip
 
         def iteration() -> None:  # one Newton iteration of every island not DONE
             wp.launch(prepare_kernel, dim=n_isl, device=device, inputs=[bd, wk, info, int(settings.iterations)])
-            self._launch_terms(st, info)
+            self._launch_terms(bd, sc, st, wk, info)
             wp.launch(direction_kernel, dim=n_isl, device=device, inputs=[bd, wk, info, threshold, trust])
             wp.capture_while(info.searching, search)
             wp.launch(iterating_kernel, dim=n_isl, device=device, inputs=[info])
 
-        wp.capture_while(info.iterating, iteration)
+        def schedule() -> None:
+            wp.launch(start_kernel, dim=n_isl, device=device, inputs=[
+                bd, sc, st, wk, info, threshold, trust, int(given), wp.float64(settings.tolerance),
+                wp.float64(f._gravity_norm),
+            ])  # fmt: skip
+            wp.capture_while(info.iterating, iteration)
+
+        if self.graph:
+            try:
+                with wp.ScopedCapture(device=device) as capture:
+                    schedule()
+            except Exception as err:  # (e.g. a driver without conditional graph nodes) launched directly instead
+                logger.warning("DeviceNewton: the solve's CUDA graph could not be captured on %s (%s): launching "
+                               "directly from now on (the loops' conditions are then read on the host)", device, err)
+                self.graph = False
+                schedule()
+            else:
+                wp.capture_launch(capture.graph)
+        else:
+            schedule()
+        self._bring_back(st, wk, threshold, trust)
         if bool((f.stats[:, STATUS] != SOLVED).any()):
             return None
         return f._result()
 
 
-__all__ = ["DeviceNewton"]
+@wp.struct
+class _Limits:
+    """One per-island array, for :class:`StructMirror` (the limits are plain arrays, not structs)."""
+
+    values: wp.array(dtype=wp.float64)
+
+
+def _limits_of(array: wp.array) -> _Limits:
+    out = _Limits()
+    out.values = array
+    return out
+
+
+__all__ = ["DeviceNewton", "StructMirror"]

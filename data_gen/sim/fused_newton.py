@@ -1437,6 +1437,24 @@ class SubstepResult:
         return out
 
 
+def scene_args(scene, device) -> SceneArgs:
+    """:class:`SceneArgs` of a :class:`~data_gen.sim.static_scene.SceneDistance`'s static scene on a warp
+    ``device`` (its boxes and its points' hash grid built there once)."""
+    sc = SceneArgs()
+    sc.has_ground = int(scene.ground)
+    sc.box_centers, sc.box_rotations, sc.box_half_extents = scene._device_boxes(device)
+    sc.far_m = wp.float64(_FAR_M)
+    if scene.points is not None:
+        grid, static_points = scene._device_points(device)
+        sc.has_points, sc.grid, sc.static_points = 1, grid.id, static_points
+        sc.point_radius_m, sc.point_search_m = wp.float64(scene.points.radius_m), wp.float64(scene.points.search_m)
+    else:
+        sc.has_points, sc.grid = 0, wp.uint64(0)
+        sc.static_points = wp.zeros(0, dtype=wp.vec3d, device=device)
+        sc.point_radius_m, sc.point_search_m = wp.float64(0.0), wp.float64(1.0)
+    return sc
+
+
 def _identity_c(model: Model) -> torch.Tensor:
     """(n,) bool: objects whose elastic energy is one cubature point with ``C = [I; 0]`` exactly (one handle:
     ``F = I + Tm[:, :3]``), assembled by :func:`_add_affine_elastic`."""
@@ -1509,20 +1527,7 @@ class FusedNewton:
         self._keep.update({key: value.contiguous() for key, value in substep_constants.items()})
         bd.mass_separable = int(_mass_separable(model))
         self.bodies = bd
-        scene = contact.scene
-        sc = SceneArgs()
-        sc.has_ground = int(scene.ground)
-        sc.box_centers, sc.box_rotations, sc.box_half_extents = scene._device_boxes(self.device)
-        sc.far_m = wp.float64(_FAR_M)
-        if scene.points is not None:
-            grid, static_points = scene._device_points(self.device)
-            sc.has_points, sc.grid, sc.static_points = 1, grid.id, static_points
-            sc.point_radius_m, sc.point_search_m = wp.float64(scene.points.radius_m), wp.float64(scene.points.search_m)
-        else:
-            sc.has_points, sc.grid = 0, wp.uint64(0)
-            sc.static_points = wp.zeros(0, dtype=wp.vec3d, device=self.device)
-            sc.point_radius_m, sc.point_search_m = wp.float64(0.0), wp.float64(1.0)
-        self.scene = sc
+        self.scene = scene_args(contact.scene, self.device)
         like = dict(dtype=model.mass_kg.dtype, device=model.mass_kg.device)
         self.tm = torch.zeros(n, 3, model.columns, **like)
         self.tm_pred = torch.zeros_like(self.tm)

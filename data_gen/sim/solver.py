@@ -57,6 +57,7 @@ from functools import partial
 
 import numpy as np
 import torch
+import warp as wp
 
 from data_gen.sim.contact import NonFiniteInput, pair_contact, pair_depth
 from data_gen.sim.contact_points import ContactPoints, CubatureGather
@@ -317,7 +318,8 @@ class ImplicitEulerSolver:
             (one warp launch per solve) instead of :func:`~data_gen.sim.newton.minimise`.
         device_newton: with ``fused_newton``, solve those groups with :class:`~data_gen.sim.device_newton.DeviceNewton`
             instead (the same solve as launches with a thread per element: the GPU's shape), one sub-step at a
-            time (the fused sub-step launch is not used).
+            time (the fused sub-step launch is not used), on ``device`` (a GPU: the workspace's model and step
+            data are copied there, the state comes back once per solve).
     """
 
     def __init__(
@@ -342,6 +344,7 @@ class ImplicitEulerSolver:
         self.dt = float(dt_s)
         self.fused_newton = bool(fused_newton)
         self.device_newton = self.fused_newton and bool(device_newton)
+        self.device = device
         self.broad_phase = BroadPhase([b.contact for b in bodies], float(self.gravity.norm()), device)
         self._cubature_gather = CubatureGather([b.contact for b in bodies])
         self.step_index = 0
@@ -870,8 +873,9 @@ class ImplicitEulerSolver:
         result, kind = None, None
         if fused is not None and self.device_newton:
             device = getattr(fused, "device_newton", None)
-            if device is None:
-                device = fused.device_newton = DeviceNewton(fused)  # (kept with its workspace)
+            if device is None:  # (kept with its workspace); on the broad phase's device (a GPU: copies go there)
+                here = wp.get_device(self.device) == wp.get_device(fused.device)
+                device = fused.device_newton = DeviceNewton(fused, device=None if here else self.device)
             result, kind = device.solve(objective, q0, None, None, settings), "device"
         elif fused is not None:
             result, kind = fused.solve(objective, q0, None, None, settings), "fused"

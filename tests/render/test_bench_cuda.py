@@ -75,3 +75,24 @@ def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
     issue, dataset = report["sequences"]["issue"], report["sequences"]["dataset"]
     assert issue["cubature_points"] == 3 * 64 and issue["image_hw_px"] == [128, 128] and issue["preset"] == "standard"
     assert dataset["image_hw_px"] == [72, 128] and dataset["preset"] == "draft"
+    solver = report["solver"]
+    assert solver["boxes"] == 3 and set(solver["runs"]) == {"cpu_fused", "device"}
+    fused, device = solver["runs"]["cpu_fused"], solver["runs"]["device"]
+    # the same physics by both paths (here both on the CPU: round-off apart), every device-path solve its own
+    assert device["counters"]["device_island_solves"] == device["counters"]["island_solves"] > 0
+    assert fused["counters"]["device_island_solves"] == 0 and device["counters"]["device_handed_back"] == 0
+    assert device["newton_iterations"] == fused["newton_iterations"]
+    assert solver["final_com_max_abs_diff_m"] < 1e-9
+    assert not device["checks"]["tunnelled"] and not fused["checks"]["tunnelled"]
+
+
+def test_solver_check_fails_a_hand_back_a_tunnelled_box_and_an_error(bench_cuda) -> None:
+    ok = {"counters": {"device_handed_back": 0, "device_island_solves": 5}, "checks": {"tunnelled": False},
+          "final_com_m": [[0.0, 0.0, 0.05]]}  # fmt: skip
+    assert bench_cuda.solver_failures({"runs": {"cpu_fused": ok, "device": ok}}) == []
+    handed = {**ok, "counters": {"device_handed_back": 2, "device_island_solves": 3}}
+    tunnelled = {**ok, "checks": {"tunnelled": True}}
+    nan = {**ok, "final_com_m": [[0.0, float("nan"), 0.05]]}
+    assert len(bench_cuda.solver_failures({"runs": {"cpu_fused": ok, "device": handed}})) == 1
+    assert len(bench_cuda.solver_failures({"runs": {"cpu_fused": tunnelled, "device": nan}})) == 2
+    assert bench_cuda.solver_failures({"runs": {"device": {"error": "step 3: boom"}}}) == ["solver device: step 3: boom"]

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from data_gen.sim.device_newton import DeviceNewton
-from data_gen.sim.fused_newton import FusedNewton
+from data_gen.sim.fused_newton import Bodies, FusedNewton, StepData, Work
 from data_gen.sim.newton import NewtonSettings
 from tests.sim.test_sim_fused_newton import IDS, SCENES, _captured_solves, _objective
 
@@ -161,3 +161,39 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
     assert counters["device_island_solves"] == counters["island_solves"] > 0
     assert counters["device_handed_back"] == 0 and counters["unconverged_solves"] == 0
     assert fused.info.counters["device_island_solves"] == 0
+
+
+def _arrays(struct, struct_type) -> list:
+    import warp as wp
+
+    return [getattr(struct, name) for name in struct_type.vars if isinstance(getattr(struct, name), wp.array)]
+
+
+@pytest.mark.parametrize("scene", SCENES, ids=IDS)
+def test_a_solve_on_copies_of_the_workspace_equals_the_solve_in_place(scene):
+    """``DeviceNewton(fused, device=...)`` (what a GPU next to a CPU workspace runs) copies the model, the step and
+    the buffers, solves there and brings the state, counters and limits back. On the CPU the copies must give the
+    in-place solve's bits exactly, hold no array of the workspace (a field left pointing at the source would
+    still work here and fail on a GPU), and keep the four-at-a-time views on their copy's memory."""
+    objective, fused, q0 = _objective(scene, speed=1.0)
+    settings = NewtonSettings(iterations=300, tolerance=1e-6, line_search_steps=8)
+    in_place = DeviceNewton(fused).solve(objective, q0, None, None, settings)
+    ref_q, ref_counters, ref_limits = in_place.q.clone(), dict(in_place.counters), fused.threshold.clone()
+    fused.threshold.zero_()  # (the copies' start launch computes the limits again: they must come back)
+    copies = DeviceNewton(fused, device="cpu")
+    out = copies.solve(objective, q0, None, None, settings)
+    assert torch.equal(out.q, ref_q) and out.counters == ref_counters
+    assert torch.equal(out.iterations, in_place.iterations) and torch.equal(fused.threshold, ref_limits)
+    value, grad, hess, _ = fused.evaluate(objective, q0, True)
+    d_value, d_grad, d_hess = copies.evaluate(objective, q0, True)
+    e_value, e_grad, e_hess = DeviceNewton(fused).evaluate(objective, q0, True)
+    assert torch.equal(d_value, e_value) and torch.equal(d_grad, e_grad) and torch.equal(d_hess, e_hess)
+    torch.testing.assert_close(d_value, value, rtol=1e-11, atol=0.0)
+    bd, sc, st, wk, threshold, trust = copies._structs(fused._step_data(objective))
+    types = (Bodies, StepData, Work)
+    own = {a.ptr for s, t in zip((fused.bodies, fused._step, fused.work), types) for a in _arrays(s, t) if a.ptr}
+    own |= {fused._limits[0].ptr, fused._limits[1].ptr}
+    copied = {a.ptr for s, t in zip((bd, st, wk), types) for a in _arrays(s, t) if a.ptr} | {threshold.ptr, trust.ptr}
+    assert not own & copied
+    assert wk.hess4.ptr == wk.hess.ptr and wk.chol4.ptr == wk.chol.ptr and wk.tm4.ptr == wk.tm.ptr
+    assert st.tm_pred4.ptr == st.tm_pred.ptr and bd.b4.ptr == bd.b.ptr
