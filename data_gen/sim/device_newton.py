@@ -63,6 +63,7 @@ from data_gen.sim.fused_newton import (
     scene_args,
 )
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
+from data_gen.sim.tile_cholesky import blocked_cholesky_solve
 
 wp.set_module_options({"enable_backward": False})
 logger = logging.getLogger(__name__)
@@ -92,6 +93,9 @@ class Island:
     slope: wp.array(dtype=wp.float64)  # grad . dq at q
     mass: wp.array(dtype=wp.float64)  # |dq|_M
     trial: wp.array(dtype=wp.int32)  # the line search's trial number
+    factor: wp.array(dtype=wp.int32)  # 1: the blocked factorisation takes this island (tile path)
+    ridge: wp.array(dtype=wp.float64)  # its ridge there
+    biggest: wp.array(dtype=wp.float64)  # the largest diagonal entry of its matrix
     iterating: wp.array(dtype=wp.int32)  # [0]: some island is not DONE
     searching: wp.array(dtype=wp.int32)  # [0]: some island is in SEARCH
 
@@ -342,38 +346,93 @@ def _set_trial(bd: Bodies, wk: Work, isl_info: Island, isl: int, mode: int):
     isl_info.searching[0] = 1
 
 
-@wp.kernel
-def direction_kernel(bd: Bodies, wk: Work, isl_info: Island, threshold: wp.array(dtype=wp.float64),
-                     trust_m: wp.array(dtype=wp.float64)):  # fmt: skip
-    """Islands in EVALUATE (just evaluated) or HAVE: the Newton update (Cholesky, with the 1e-10 relative ridge
-    where needed; hand-back where the matrix stays indefinite or a value is not finite), then the start of
-    :func:`data_gen.sim.fused_newton._take_update`: trust limit, converged shortcut, slope, first trial (with
-    derivatives)."""
-    isl = wp.tid()
-    phase = isl_info.phase[isl]
-    if phase != EVALUATE and phase != HAVE:
-        return
+@wp.func
+def _checked_start(bd: Bodies, wk: Work, isl_info: Island, isl: int, phase: int):
+    """An iteration's start for island ``isl`` in EVALUATE or HAVE: its value at q taken from the sum just made
+    (EVALUATE), then 1 when that value and the gradient are finite, else the island is handed back (DONE with
+    NEEDS_FALLBACK) and 0. Also returns the largest diagonal entry of its matrix (the ridge's scale)."""
     n_size = bd.island_size
     start = isl * n_size
     if phase == EVALUATE:
         isl_info.value[isl] = isl_info.total[isl]
-    value = isl_info.value[isl]
     finite = int(1)
     biggest = _ZERO
     for r in range(n_size):
         if not wp.isfinite(wk.grad[start + r]):
             finite = int(0)
         biggest = wp.max(biggest, wp.abs(wk.hess[start * n_size + r * n_size + r]))
-    if finite == 0 or not wp.isfinite(value):
+    if finite == 0 or not wp.isfinite(isl_info.value[isl]):
         wk.stats[isl, STATUS] = NEEDS_FALLBACK
         isl_info.phase[isl] = DONE
+        return 0, biggest
+    return 1, biggest
+
+
+@wp.kernel
+def factor_start_kernel(bd: Bodies, wk: Work, isl_info: Island):
+    """Before the blocked factorisation (:mod:`data_gen.sim.tile_cholesky`): islands in EVALUATE or HAVE that pass
+    :func:`_checked_start` are marked for it, without a ridge."""
+    isl = wp.tid()
+    isl_info.factor[isl] = 0
+    phase = isl_info.phase[isl]
+    if phase != EVALUATE and phase != HAVE:
         return
-    if _cholesky(wk.hess, wk.chol, wk.chol4, wk.first, isl, n_size, _ZERO) == 0:
-        if _cholesky(wk.hess, wk.chol, wk.chol4, wk.first, isl, n_size, wp.float64(1e-10) * biggest) == 0:
+    ok, biggest = _checked_start(bd, wk, isl_info, isl, phase)
+    isl_info.biggest[isl] = biggest
+    isl_info.ridge[isl] = _ZERO
+    isl_info.factor[isl] = ok
+
+
+@wp.func
+def _direction_finite(bd: Bodies, wk: Work, isl: int):
+    n_size = bd.island_size
+    start = isl * n_size
+    for r in range(n_size):
+        if not wp.isfinite(wk.dq[start + r]):
+            return 0
+    return 1
+
+
+@wp.kernel
+def ridge_kernel(bd: Bodies, wk: Work, isl_info: Island):
+    """After the first blocked factorisation: an island whose update is not finite (a pivot was not positive) is
+    factorised again with the 1e-10 relative ridge; the others are done with it."""
+    isl = wp.tid()
+    if isl_info.factor[isl] != 0 and _direction_finite(bd, wk, isl) == 0:
+        isl_info.ridge[isl] = wp.float64(1e-10) * isl_info.biggest[isl]
+    else:
+        isl_info.factor[isl] = 0
+
+
+@wp.kernel
+def direction_kernel(bd: Bodies, wk: Work, isl_info: Island, threshold: wp.array(dtype=wp.float64),
+                     trust_m: wp.array(dtype=wp.float64), factored: int):  # fmt: skip
+    """Islands in EVALUATE (just evaluated) or HAVE: the Newton update (Cholesky, with the 1e-10 relative ridge
+    where needed; hand-back where the matrix stays indefinite or a value is not finite), then the start of
+    :func:`data_gen.sim.fused_newton._take_update`: trust limit, converged shortcut, slope, first trial (with
+    derivatives). With ``factored`` the update is already in ``dq`` (the blocked factorisation, after
+    :func:`factor_start_kernel`): only its finiteness is tested here."""
+    isl = wp.tid()
+    phase = isl_info.phase[isl]
+    if phase != EVALUATE and phase != HAVE:
+        return
+    n_size = bd.island_size
+    start = isl * n_size
+    if factored != 0:
+        if _direction_finite(bd, wk, isl) == 0:  # indefinite even with the ridge
             wk.stats[isl, STATUS] = NEEDS_FALLBACK
             isl_info.phase[isl] = DONE
             return
-    _newton_direction(wk.chol, wk.chol4, wk.first, wk.grad, wk.dq, wk.dq4, isl, n_size)
+    else:
+        ok, biggest = _checked_start(bd, wk, isl_info, isl, phase)
+        if ok == 0:
+            return
+        if _cholesky(wk.hess, wk.chol, wk.chol4, wk.first, isl, n_size, _ZERO) == 0:
+            if _cholesky(wk.hess, wk.chol, wk.chol4, wk.first, isl, n_size, wp.float64(1e-10) * biggest) == 0:
+                wk.stats[isl, STATUS] = NEEDS_FALLBACK
+                isl_info.phase[isl] = DONE
+                return
+        _newton_direction(wk.chol, wk.chol4, wk.first, wk.grad, wk.dq, wk.dq4, isl, n_size)
     wk.stats[isl, ITERATIONS] += 1
     mass, motion = _update_norms(bd, wk.dq, isl)
     alpha = wp.min(trust_m[isl] / wp.max(motion, wp.float64(1e-300)), _ONE)
@@ -492,13 +551,16 @@ class DeviceNewton:
     there: the model is copied once, each solve's step data and start state are copied over, and the state and
     counters come back when it ends; nothing crosses between its Newton iterations. With ``graph`` (CUDA) the
     schedule is captured as one CUDA graph per solve, its loops as conditional nodes (CUDA 12.4+), and launched
-    once: no host read inside the solve at all."""
+    once: no host read inside the solve at all. With ``tile_factor`` (the default on CUDA) the islands' matrices
+    are factorised by :mod:`data_gen.sim.tile_cholesky`, a block of threads per island, instead of one thread
+    each (the CPU's default: there a block is one thread, and the envelope factorisation costs less)."""
 
-    def __init__(self, fused: FusedNewton, device=None, graph: bool = True) -> None:
+    def __init__(self, fused: FusedNewton, device=None, graph: bool = True, tile_factor: bool | None = None) -> None:
         self.fused = fused
         self.mirror = StructMirror(device) if device is not None else None
         self.device = self.mirror.device if self.mirror is not None else wp.get_device(fused.device)
         self.graph = bool(graph) and self.device.is_cuda
+        self.tile_factor = self.device.is_cuda if tile_factor is None else bool(tile_factor)
         self._info: Island | None = None
         self._info_key: tuple | None = None
         self._bodies_key: tuple | None = None
@@ -514,7 +576,7 @@ class DeviceNewton:
             return self._info
         info = Island()
         for name in Island.vars:
-            dtype = wp.float64 if name in ("value", "total", "alpha", "slope", "mass") else wp.int32
+            dtype = wp.float64 if name in ("value", "total", "alpha", "slope", "mass", "ridge", "biggest") else wp.int32
             count = 1 if name in ("iterating", "searching") else n_isl
             setattr(info, name, wp.zeros(count, dtype=dtype, device=self.device))
         info.object_island = wp.array(f.island_of.to(torch.int32).cpu().numpy(), dtype=wp.int32, device=self.device)
@@ -566,6 +628,17 @@ class DeviceNewton:
         if st.num_pairs:
             wp.launch(pairs_kernel, dim=st.num_pairs, device=device, inputs=[bd, st, wk, info])
 
+    def _factor_blocked(self, bd: Bodies, wk: Work, info: Island) -> None:
+        """The update ``dq`` of every island in EVALUATE or HAVE by the blocked factorisation, again with the
+        ridge where the first left it non-finite (:func:`factor_start_kernel`, :func:`ridge_kernel`)."""
+        n_isl, size = self.fused.shape
+        matrices = (_view(wk.hess, (n_isl, size, size)), _view(wk.grad, (n_isl, size, 1)))
+        outputs = (_view(wk.chol, (n_isl, size, size)), _view(wk.dq, (n_isl, size, 1)))
+        wp.launch(factor_start_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info])
+        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs)
+        wp.launch(ridge_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info])
+        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs)
+
     def evaluate(self, objective, q: torch.Tensor,
                  derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:  # fmt: skip
         """``objective`` per island (n_isl,) at ``q`` (n_isl, N) summed by the term launches; with ``derivatives``
@@ -608,7 +681,10 @@ class DeviceNewton:
         def iteration() -> None:  # one Newton iteration of every island not DONE
             wp.launch(prepare_kernel, dim=n_isl, device=device, inputs=[bd, wk, info, int(settings.iterations)])
             self._launch_terms(bd, sc, st, wk, info)
-            wp.launch(direction_kernel, dim=n_isl, device=device, inputs=[bd, wk, info, threshold, trust])
+            if self.tile_factor:
+                self._factor_blocked(bd, wk, info)
+            wp.launch(direction_kernel, dim=n_isl, device=device,
+                      inputs=[bd, wk, info, threshold, trust, int(self.tile_factor)])  # fmt: skip
             wp.capture_while(info.searching, search)
             wp.launch(iterating_kernel, dim=n_isl, device=device, inputs=[info])
 
@@ -636,6 +712,11 @@ class DeviceNewton:
         if bool((f.stats[:, STATUS] != SOLVED).any()):
             return None
         return f._result()
+
+
+def _view(array: wp.array, shape: tuple[int, ...]) -> wp.array:
+    """A contiguous float64 array's memory seen with another shape (no copy)."""
+    return wp.array(ptr=array.ptr, dtype=wp.float64, shape=shape, device=array.device)
 
 
 @wp.struct

@@ -57,9 +57,11 @@ def _same_solve(objective, fused_result, device_result, settings, scale, same_pa
     assert bool((gap <= gap_tol * settings.tolerance * scale).all()), (gap / (settings.tolerance * scale)).tolist()
 
 
-def test_schedule_takes_the_fused_kernels_path_on_recorded_steps():
+@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
+def test_schedule_takes_the_fused_kernels_path_on_recorded_steps(tile_factor):
     """Real steps of a thrown stack of one-handle boxes (landing, pairs, friction); every third with a tiny
-    trust radius (updates cut by it). Checked against the fused kernel, itself checked against ``minimise``."""
+    trust radius (updates cut by it). Checked against the fused kernel, itself checked against ``minimise``;
+    with the islands factorised by a thread each (the CPU's default) and by the blocked factorisation (the GPU's)."""
     solves = _captured_solves(throw=True)
     assert len(solves) >= 20
     trust_limited = line_searched = 0
@@ -69,15 +71,16 @@ def test_schedule_takes_the_fused_kernels_path_on_recorded_steps():
                             objective.min_median_radius_m)  # fmt: skip
         ref = fused.solve(objective, q0, scale, trust, settings)
         ref = type(ref)(ref.q.clone(), ref.iterations, ref.converged, dict(ref.counters))  # (q: the workspace's)
-        out = DeviceNewton(fused).solve(objective, q0, scale, trust, settings)
+        out = DeviceNewton(fused, tile_factor=tile_factor).solve(objective, q0, scale, trust, settings)
         _same_solve(objective, ref, out, settings, scale)
         trust_limited += out.counters["trust_limited_steps"]
         line_searched += out.counters["evaluations"]
     assert trust_limited > 0 and line_searched > 0  # both the trust limit and halvings were exercised
 
 
+@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
 @pytest.mark.parametrize("scene", SCENES, ids=IDS)
-def test_schedule_solves_islands_of_deformable_objects_as_the_fused_kernel(scene):
+def test_schedule_solves_islands_of_deformable_objects_as_the_fused_kernel(scene, tile_factor):
     """Two islands of 1-, 3- and 2-handle objects moving fast into the scene (40-160 trust-limited iterations,
     line searches): each island stops in its own iteration (the schedule runs until the last is done), both
     converge where the fused kernel's do, to 0.05 of the tolerance (the bound the fused kernel meets against
@@ -91,7 +94,7 @@ def test_schedule_solves_islands_of_deformable_objects_as_the_fused_kernel(scene
     assert int(ref.iterations.min()) >= 30 and ref.counters["trust_limited_steps"] > 0 and ref.counters["evaluations"] > 0
     scale = fused.threshold.clone() / settings.tolerance
     trust = fused.trust.clone()
-    device = DeviceNewton(fused)
+    device = DeviceNewton(fused, tile_factor=tile_factor)
     out = device.solve(objective, q0, None, None, settings)
     _same_solve(objective, ref, out, settings, scale, same_path=False, gap_tol=0.05)
     assert bool(((out.iterations - ref.iterations).abs() <= 0.1 * ref.iterations).all())
@@ -114,11 +117,12 @@ def test_iteration_cap_stops_islands_unconverged_as_the_fused_kernel():
     assert bool((out.iterations == 1).all())
 
 
-def test_schedule_hands_back_a_non_finite_state():
+@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
+def test_schedule_hands_back_a_non_finite_state(tile_factor):
     objective, q0, scale, trust, settings = _captured_solves(1)[0]
     fused = FusedNewton(objective.model, objective.layout, objective.contact, objective.island_mass_kg,
                         objective.min_median_radius_m)  # fmt: skip
-    device = DeviceNewton(fused)
+    device = DeviceNewton(fused, tile_factor=tile_factor)
     assert device.solve(objective, q0, scale, trust, settings) is not None
     bad = q0.clone()
     bad[0, 0] = float("nan")
@@ -197,3 +201,31 @@ def test_a_solve_on_copies_of_the_workspace_equals_the_solve_in_place(scene):
     assert not own & copied
     assert wk.hess4.ptr == wk.hess.ptr and wk.chol4.ptr == wk.chol.ptr and wk.tm4.ptr == wk.tm.ptr
     assert st.tm_pred4.ptr == st.tm_pred.ptr and bd.b4.ptr == bd.b.ptr
+
+
+def test_blocked_factorisation_takes_the_ridge_where_a_matrix_is_singular():
+    """An island whose matrix has a zero row and column (an unknown nothing acts on) fails the first blocked
+    factorisation; the second adds the fused kernel's ridge (1e-10 of the largest diagonal entry) and its update
+    is numpy's solve of that matrix; the other island's update has no ridge."""
+    from data_gen.sim.device_newton import EVALUATE
+
+    objective, fused, q0 = _objective(SCENES[0])
+    device = DeviceNewton(fused, tile_factor=True)
+    _, grad, hess = device.evaluate(objective, q0, True)
+    n_isl, size = fused.shape
+    singular = hess.clone()
+    singular[0, 5, :] = 0.0
+    singular[0, :, 5] = 0.0
+    fused.hess.view(n_isl, size, size).copy_(singular)
+    info = device._island_info()
+    info.phase.assign(np.full(n_isl, EVALUATE, dtype=np.int32))
+    device._factor_blocked(fused.bodies, fused.work, info)
+    assert info.factor.numpy().tolist() == [1, 0]  # (after the second pass: the island that needed the ridge)
+    dq = fused.dq.view(n_isl, size)
+    sym = 0.5 * (singular + singular.mT)
+    ridge = 1e-10 * float(singular[0].diagonal().abs().max())
+    want0 = -torch.linalg.solve(sym[0] + ridge * torch.eye(size, dtype=D), grad[0])
+    want1 = -torch.linalg.solve(sym[1], grad[1])
+    torch.testing.assert_close(dq[0], want0, rtol=1e-6, atol=0.0)
+    torch.testing.assert_close(dq[1], want1, rtol=1e-9, atol=1e-12 * float(want1.abs().max()))
+    assert float(info.ridge.numpy()[0]) == ridge

@@ -1,0 +1,123 @@
+"""Newton directions of a batch of dense island matrices by a blocked Cholesky, one thread block per island.
+
+:class:`~data_gen.sim.device_newton.DeviceNewton` factorises each island's matrix. One thread doing that (the fused
+kernel's envelope Cholesky) suits a CPU core; on a GPU the threads of a block should share the work. This kernel
+runs warp's cooperative tile routines over ``TILE`` x ``TILE`` blocks of the matrix (a left-looking blocked
+Cholesky: ``tile_matmul`` updates, ``tile_cholesky`` of the diagonal blocks, ``tile_lower_solve`` for the blocks
+below them, then the two block triangular solves), reading and writing the matrix and its factor in global memory
+so that any island size fits (shared memory holds a few blocks only). Blocks reaching past the matrix read as zero
+and get ones on their diagonal, so the size need not be a multiple of ``TILE``.
+
+It solves ``((H + H^T) / 2 + ridge I) dq = -g`` per island, as :func:`data_gen.sim.fused_newton._cholesky` and
+``_newton_direction`` do (their sums in another order: round-off apart). A matrix that is not positive definite
+leaves non-finite entries in ``dq`` (a pivot's square root of a negative number), which the caller tests.
+
+On the CPU warp runs the block's work in one thread (``tests/sim/test_sim_tile_cholesky.py`` checks it there
+against numpy); the cooperation of a block's threads runs on a GPU only.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+TILE = 32
+"""Side of the blocks (float64: 8 KiB each; a factorisation holds a few at a time)."""
+THREADS = 64
+"""Threads per island on a GPU (``block_dim`` of the launch)."""
+
+
+@wp.func
+def _half_sum(a: wp.float64, b: wp.float64):
+    return wp.float64(0.5) * (a + b)
+
+
+@wp.func
+def _negative(a: wp.float64):
+    return -a
+
+
+@wp.func
+def _diagonal(i: wp.int32, size: wp.int32, inside: wp.float64):
+    """What the diagonal of a block gets at global row ``i``: ``inside`` within the matrix, 1 past its end."""
+    return wp.where(i < size, inside, wp.float64(1.0))
+
+
+@wp.kernel
+def blocked_cholesky_solve_kernel(
+    hess: wp.array3d(dtype=wp.float64),
+    grad: wp.array3d(dtype=wp.float64),
+    ridge: wp.array(dtype=wp.float64),
+    active: wp.array(dtype=wp.int32),
+    chol: wp.array3d(dtype=wp.float64),
+    dq: wp.array3d(dtype=wp.float64),
+):
+    """Island ``isl`` (one block of threads) with ``active[isl]``: its factor L of ``(H + H^T) / 2 + ridge I``
+    (``hess`` (n_isl, N, N)) in the lower blocks of ``chol`` (n_isl, N, N) and ``dq = -(L L^T)^-1 g`` (``grad`` and
+    ``dq`` (n_isl, N, 1))."""
+    isl = wp.tid()
+    if active[isl] == 0:
+        return
+    n = hess.shape[1]
+    nb = (n + TILE - 1) // TILE
+    r = ridge[isl]
+    for k in range(nb):
+        k0 = k * TILE
+        rows = wp.tile_arange(TILE, dtype=wp.int32) + wp.tile_full(shape=TILE, value=k0, dtype=wp.int32)
+        size = wp.tile_full(shape=TILE, value=n, dtype=wp.int32)
+        a = wp.tile_map(_half_sum, wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(k0, k0)),
+                        wp.tile_transpose(wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(k0, k0))))  # fmt: skip
+        a = wp.tile_diag_add(a, wp.tile_map(_diagonal, rows, size, wp.tile_full(shape=TILE, value=r, dtype=wp.float64)))
+        for j in range(k):
+            lkj = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE))
+            wp.tile_matmul(lkj, wp.tile_transpose(lkj), a, alpha=wp.float64(-1.0), beta=wp.float64(1.0))
+        lkk = wp.tile_cholesky(a)
+        wp.tile_store(chol[isl], lkk, offset=(k0, k0))
+        for i in range(k + 1, nb):
+            i0 = i * TILE
+            b = wp.tile_map(_half_sum, wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(i0, k0)),
+                            wp.tile_transpose(wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(k0, i0))))  # fmt: skip
+            for j in range(k):
+                lij = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(i0, j * TILE))
+                lkj = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE))
+                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(-1.0), beta=wp.float64(1.0))
+            # L_ik L_kk^T = B: L_kk L_ik^T = B^T
+            wp.tile_store(chol[isl], wp.tile_transpose(wp.tile_lower_solve(lkk, wp.tile_transpose(b))), offset=(i0, k0))
+    # L y = -g, then L^T x = y (x in dq); diagonal blocks with ones past the matrix's end
+    for k in range(nb):
+        k0 = k * TILE
+        rows = wp.tile_arange(TILE, dtype=wp.int32) + wp.tile_full(shape=TILE, value=k0, dtype=wp.int32)
+        ones_past = wp.tile_map(_diagonal, rows, wp.tile_full(shape=TILE, value=n, dtype=wp.int32),
+                                wp.tile_zeros(shape=TILE, dtype=wp.float64))  # fmt: skip
+        y = wp.tile_map(_negative, wp.tile_load(grad[isl], shape=(TILE, 1), offset=(k0, 0)))
+        for j in range(k):
+            wp.tile_matmul(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE)),
+                           wp.tile_load(dq[isl], shape=(TILE, 1), offset=(j * TILE, 0)), y,
+                           alpha=wp.float64(-1.0), beta=wp.float64(1.0))  # fmt: skip
+        lkk = wp.tile_diag_add(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, k0)), ones_past)
+        wp.tile_store(dq[isl], wp.tile_lower_solve(lkk, y), offset=(k0, 0))
+    for kk in range(nb):
+        k = nb - 1 - kk
+        k0 = k * TILE
+        rows = wp.tile_arange(TILE, dtype=wp.int32) + wp.tile_full(shape=TILE, value=k0, dtype=wp.int32)
+        ones_past = wp.tile_map(_diagonal, rows, wp.tile_full(shape=TILE, value=n, dtype=wp.int32),
+                                wp.tile_zeros(shape=TILE, dtype=wp.float64))  # fmt: skip
+        x = wp.tile_load(dq[isl], shape=(TILE, 1), offset=(k0, 0))
+        for j in range(k + 1, nb):
+            wp.tile_matmul(wp.tile_transpose(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(j * TILE, k0))),
+                           wp.tile_load(dq[isl], shape=(TILE, 1), offset=(j * TILE, 0)), x,
+                           alpha=wp.float64(-1.0), beta=wp.float64(1.0))  # fmt: skip
+        lkk = wp.tile_diag_add(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, k0)), ones_past)
+        wp.tile_store(dq[isl], wp.tile_upper_solve(wp.tile_transpose(lkk), x), offset=(k0, 0))
+
+
+def blocked_cholesky_solve(hess: wp.array, grad: wp.array, ridge: wp.array, active: wp.array, chol: wp.array,
+                           dq: wp.array) -> None:  # fmt: skip
+    """Launch :func:`blocked_cholesky_solve_kernel` over the islands (``hess``'s first axis), a block of
+    :data:`THREADS` threads each."""
+    wp.launch_tiled(blocked_cholesky_solve_kernel, dim=[hess.shape[0]], inputs=[hess, grad, ridge, active, chol, dq],
+                    block_dim=THREADS, device=hess.device)  # fmt: skip
+
+
+__all__ = ["TILE", "THREADS", "blocked_cholesky_solve", "blocked_cholesky_solve_kernel"]
