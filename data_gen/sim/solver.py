@@ -316,10 +316,12 @@ class ImplicitEulerSolver:
         device: warp device of the broad phase.
         fused_newton: solve groups of one-handle objects with :class:`~data_gen.sim.fused_newton.FusedNewton`
             (one warp launch per solve) instead of :func:`~data_gen.sim.newton.minimise`.
-        device_newton: with ``fused_newton``, solve those groups with :class:`~data_gen.sim.device_newton.DeviceNewton`
-            instead (the same solve as launches with a thread per element: the GPU's shape), one sub-step at a
-            time (the fused sub-step launch is not used), on ``device`` (a GPU: the workspace's model and step
-            data are copied there, the state comes back once per solve).
+        device_newton: with ``fused_newton``, solve the groups of one-handle objects, and those of deformable ones,
+            with :class:`~data_gen.sim.device_newton.DeviceNewton` (Newton's method as launches with a thread per
+            element: the GPU's shape; for deformable objects the full Newton matrix every iteration, no kept elastic
+            blocks), one sub-step at a time (the fused sub-step launch is not used), on ``device`` (a GPU: the
+            workspace's model and step data are copied there, the state comes back once per solve). Mixed groups
+            take ``minimise``.
     """
 
     def __init__(
@@ -832,7 +834,7 @@ class ImplicitEulerSolver:
         self.counters["island_solves"] += len(islands)
         self.counters["island_object_solves"] += len(objects)
         tm_n, tmdot = self._padded_states(setup)
-        kept = self._kept_elastic
+        kept = self._kept_elastic if not self.device_newton else None  # (the device solve keeps no matrices)
         if kept is not None and not any(self._one_handle[k] for k in objects):  # (one group of soft objects)
             strain = kept.strain(setup.index, tm_n + h * tmdot)  # at the predicted start, where K is formed
             reused = kept.lookup(setup.index, strain)
@@ -870,13 +872,17 @@ class ImplicitEulerSolver:
         # kernel iterates, the host factorises (both compute the step's convergence scale and trust radius)
         fused = objective.workspace.fused if self.fused_newton else None
         split = objective.evaluator if fused is None and self.preset.lagged_elastic_hessian else None
+        # with device_newton: one-handle islands on the fused workspace, deformable ones on the evaluator's (the
+        # full Newton matrix every iteration: no kept elastic blocks)
+        on_device = (fused if fused is not None else objective.evaluator) if self.device_newton else None
         result, kind = None, None
-        if fused is not None and self.device_newton:
-            device = getattr(fused, "device_newton", None)
+        if on_device is not None:
+            device = getattr(on_device, "device_newton", None)
             if device is None:  # (kept with its workspace); on the broad phase's device (a GPU: copies go there)
-                here = wp.get_device(self.device) == wp.get_device(fused.device)
-                device = fused.device_newton = DeviceNewton(fused, device=None if here else self.device)
+                here = wp.get_device(self.device) == wp.get_device(on_device.device)
+                device = on_device.device_newton = DeviceNewton(on_device, device=None if here else self.device)
             result, kind = device.solve(objective, q0, None, None, settings), "device"
+            fused, split = (on_device, None) if fused is not None else (None, on_device)
         elif fused is not None:
             result, kind = fused.solve(objective, q0, None, None, settings), "fused"
         elif split is not None:

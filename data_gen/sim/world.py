@@ -121,9 +121,10 @@ class Simulator:
         fused_newton: solve islands with the fused Newton kernel (:mod:`data_gen.sim.fused_newton`); False: the
             batched :func:`~data_gen.sim.newton.minimise` (the reference path).
         training_threads: skinning bases trained side by side.
-        device_newton: solve the one-handle islands with :class:`~data_gen.sim.device_newton.DeviceNewton` (the
-            fused solve as launches with a thread per element, the GPU's shape) instead of the fused kernel's
-            sub-step launch: the same results to round-off; slower on the CPU.
+        device_newton: solve islands with :class:`~data_gen.sim.device_newton.DeviceNewton` (Newton's method as
+            launches with a thread per element, the GPU's shape) on ``device``, instead of the fused kernel's
+            sub-step launch (one-handle islands: the same results to round-off) and the split solve (deformable
+            islands: the full Newton matrix every iteration); 4-6x slower on the CPU.
     """
 
     def __init__(
