@@ -60,7 +60,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_render import make_scene  # noqa: E402
 
 from data_gen.configs import render_settings, scenario_config  # noqa: E402
-from data_gen.pipeline import build_objects, get_scene_layout, render_sequence, simulate, skinned_surfaces  # noqa: E402
+from data_gen.pipeline import (  # noqa: E402
+    SequenceRejected,
+    build_objects,
+    get_scene_layout,
+    render_sequence,
+    simulate,
+    skinned_surfaces,
+)
 from data_gen.render.labels import LabelRasterizer  # noqa: E402
 from data_gen.render.rgb import RgbRasterizer  # noqa: E402
 from data_gen.scenario import sample_scenario  # noqa: E402
@@ -316,6 +323,26 @@ def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> t
            "handles": [int(t.num_handles) for t in result.objects],
            "newton_iterations": int(result.info.newton_iterations),
            "kernel_load_s": kernel_load_s, "simulate_s": sim_s, "simulate_setup_s": setup_s}  # fmt: skip
+    if not args.no_device_solver:  # the same simulation with its Newton solves on the device (DeviceNewton)
+        t0 = time.perf_counter()
+        for name in ("data_gen.sim.device_newton", "data_gen.sim.tile_cholesky"):
+            wp.load_module(importlib.import_module(name), device=device)
+        out["device_kernel_load_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        try:
+            on_device = simulate(scenario, objects, layout, preset, training_threads=threads, device=device,
+                                 device_newton=True)  # fmt: skip
+        except SequenceRejected as err:  # (the checks of generate's own rejection: reported, a failure)
+            on_device = None
+            out["device_solver_error"] = f"{err.reason}: {err}"
+    if not args.no_device_solver and on_device is not None:
+        out["simulate_device_s"] = time.perf_counter() - t0
+        out["simulate_device_setup_s"] = float(on_device.info.timings_s["setup"])
+        out["device_solver_counters"] = {k: int(on_device.info.counters[k]) for k in
+                                         ("island_solves", "device_island_solves", "device_handed_back",
+                                          "unconverged_solves")}  # fmt: skip
+        com = [np.abs(a.com_m - b.com_m).max() for a, b in zip(result.objects, on_device.objects)]
+        out["device_solver_com_max_abs_diff_m"] = float(max(com))
     out["pose_device_vs_cpu"] = _compare_poses(objects, result, device)
     maps = {}
     for key, dev in (("device", device), ("cpu", "cpu"))[: 1 if args.no_cpu_render else 2]:
@@ -349,6 +376,8 @@ def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> t
     frames = spec.frames
     sim_run = sim_s - setup_s
     out["fps"] = {"simulate": frames / sim_run}
+    if "simulate_device_s" in out:
+        out["fps"]["simulate_device"] = frames / (out["simulate_device_s"] - out["simulate_device_setup_s"])
     for key in maps:
         out["fps"][f"render_{key}"] = frames / out[f"render_{key}_s"]
         out["fps"][f"simulate_and_render_{key}"] = frames / (sim_run + out[f"render_{key}_s"])
@@ -403,6 +432,8 @@ def main() -> None:
                     "default sequence at 1000 x 562")  # fmt: skip
     ap.add_argument("--profile-render", action="store_true", help="one more device render under cProfile, written "
                     "to <out>_render_profile.txt")  # fmt: skip
+    ap.add_argument("--no-device-solver", action="store_true", help="do not simulate the sequences again with the "
+                    "Newton solves on the device (Simulator(device_newton=True))")
     ap.add_argument("--no-cpu-render", action="store_true", help="render the sequence on the device only (no maps "
                     "compared; the poses still are)")  # fmt: skip
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "cuda.json")
@@ -482,6 +513,16 @@ def main() -> None:
                   f"{seq.get('render_device_first_s', float('nan')):.2f} s), render CPU "
                   f"{seq.get('render_cpu_s', float('nan')):.2f} s", flush=True)  # fmt: skip
             print(f"[{spec.name}] FPS: " + ", ".join(f"{k} {v:.2f}" for k, v in seq["fps"].items()), flush=True)
+            if "device_solver_error" in seq:
+                print(f"[{spec.name}] device solver: {seq['device_solver_error']}", flush=True)
+                failures.append(f"{spec.name} device solver")
+            elif "device_solver_counters" in seq:
+                print(f"[{spec.name}] device solver: kernels loaded in {seq['device_kernel_load_s']:.1f} s, simulate "
+                      f"{seq['simulate_device_s']:.1f} s, " + ", ".join(f"{k} {v}" for k, v in
+                      seq["device_solver_counters"].items()) + f", centres differ from the CPU's by at most "
+                      f"{seq['device_solver_com_max_abs_diff_m']:.3g} m", flush=True)  # fmt: skip
+                if seq["device_solver_counters"]["device_handed_back"]:
+                    failures.append(f"{spec.name} device solver handed back")
             print(f"[{spec.name}] pose: " + ", ".join(f"{k} {v:.3g}" for k, v in seq["pose_device_vs_cpu"].items()),
                   flush=True)  # fmt: skip
             if any(seq["pose_device_vs_cpu"][k] > tol for k, tol in POSE_TOLERANCE.items()):

@@ -210,9 +210,11 @@ def build_objects(scenario: Scenario, settings: RenderSettings) -> list[SceneObj
 
 
 def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout, preset: QualityPreset,
-             skinning_cache_dir: str | None = None, training_threads: int = 1) -> SimulationResult:
+             skinning_cache_dir: str | None = None, training_threads: int = 1, device: str = "cpu",
+             device_newton: bool = False) -> SimulationResult:  # fmt: skip
     """Simulate a scenario's objects (``training_threads``: threads that train the draw's skinning bases side by
-    side, the same bases in every case); raises SequenceRejected for a draw whose simulation fails or is wrong."""
+    side, the same bases in every case; ``device`` and ``device_newton`` as :class:`Simulator`'s: the broad phase's
+    device and the Newton solves' there); raises SequenceRejected for a draw whose simulation fails or is wrong."""
     specs = [
         SimObjectSpec(
             name=f"{o.object_id}:{o.asset.name}", points_rest_m=o.interior_points_m, volume_m3=o.volume_m3,
@@ -224,7 +226,8 @@ def simulate(scenario: Scenario, objects: list[SceneObject], layout: SceneLayout
     ]
     try:
         sim = Simulator(sim_static_scene(layout), specs, scenario.gravity_m_s2, preset, seed=scenario.seed,
-                        skinning_cache_dir=skinning_cache_dir, training_threads=training_threads)
+                        skinning_cache_dir=skinning_cache_dir, training_threads=training_threads, device=device,
+                        device_newton=device_newton)  # fmt: skip
         result = sim.run(scenario.num_frames, scenario.fps)
     except SimulationError as e:
         raise SequenceRejected("simulation_failed", str(e)) from None

@@ -448,14 +448,16 @@ class ImplicitEulerSolver:
         for island, num_sub in zip(islands, self._island_substeps(contacts, positions, speeds)):
             # islands that need the same sub-steps: one solve; with the fused solver, islands of one-handle
             # objects only (FusedNewton's) apart from the others
-            rigid = self.fused_newton and not self.device_newton and all(self._one_handle[k] for k in island)
+            rigid = self.fused_newton and all(self._one_handle[k] for k in island)
             by_substeps.setdefault((num_sub, rigid), []).append(island)
         keys = sorted(by_substeps)
         # the islands of one-handle objects, whatever their sub-steps, in one fused launch; each sub-step
         # class's records are taken at its place in the sorted order (the events come out in the same order)
         t0 = time.perf_counter()
-        records = self._solve_rigid_substeps([(key[0], by_substeps[key]) for key in keys if key[1]],
-                                             contacts.pairs, positions, stats, supported)  # fmt: skip
+        records = self._solve_rigid_substeps(
+            [] if self.device_newton else [(key[0], by_substeps[key]) for key in keys if key[1]],
+            contacts.pairs, positions, stats, supported,
+        )  # (with device_newton the one-handle groups are solved one sub-step at a time below)
         self.timings["newton"] += time.perf_counter() - t0
         for num_sub, rigid in keys:
             group = by_substeps[(num_sub, rigid)]
@@ -872,9 +874,9 @@ class ImplicitEulerSolver:
         # kernel iterates, the host factorises (both compute the step's convergence scale and trust radius)
         fused = objective.workspace.fused if self.fused_newton else None
         split = objective.evaluator if fused is None and self.preset.lagged_elastic_hessian else None
-        # with device_newton: one-handle islands on the fused workspace, deformable ones on the evaluator's (the
-        # full Newton matrix every iteration: no kept elastic blocks)
-        on_device = (fused if fused is not None else objective.evaluator) if self.device_newton else None
+        # with device_newton: every group on a FusedNewton workspace of its objects (for deformable ones the full
+        # Newton matrix every iteration: no kept elastic blocks)
+        on_device = objective.workspace.any_fused if self.device_newton else None
         result, kind = None, None
         if on_device is not None:
             device = getattr(on_device, "device_newton", None)

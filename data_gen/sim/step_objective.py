@@ -86,6 +86,7 @@ class SolveWorkspace:
         )
         self._evaluator: FusedNewton | None = None
         self._model, self._layout = model, layout
+        self._any_fused: FusedNewton | None = None
 
     @property
     def evaluator(self) -> FusedNewton | None:
@@ -96,6 +97,22 @@ class SolveWorkspace:
             self._evaluator = FusedNewton(self._model, self._layout, self.contact, self.island_mass_kg,
                                           self.min_median_radius_m)  # fmt: skip
         return self._evaluator
+
+
+    @property
+    def any_fused(self) -> FusedNewton | None:
+        """A :class:`FusedNewton` on this workspace's contact buffers for its objects whatever their handles (the
+        fused solver's, the evaluator's, or one of its own for islands mixing one-handle and deformable objects),
+        or None where the islands do not fit the kernels or the model is not on the CPU: what
+        :class:`~data_gen.sim.device_newton.DeviceNewton` solves on."""
+        if self.fused is not None:
+            return self.fused
+        if self.evaluator is not None:
+            return self.evaluator
+        if self._any_fused is None and fused_fits(self._layout) and self._model.mass_kg.device.type == "cpu":
+            self._any_fused = FusedNewton(self._model, self._layout, self.contact, self.island_mass_kg,
+                                          self.min_median_radius_m)  # fmt: skip
+        return self._any_fused
 
 
 def island_constants(model: Model, layout: DofLayout) -> tuple[torch.Tensor, torch.Tensor]:

@@ -65,8 +65,12 @@ def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
     assert set(report["sequences"]) == {"issue", "dataset"}
     for name, seq in report["sequences"].items():
         assert seq["frames"] == 6 and seq["objects"] == 3
-        assert set(seq["fps"]) == {"simulate", "render_device", "simulate_and_render_device", "render_cpu",
-                                   "simulate_and_render_cpu"}  # fmt: skip
+        assert set(seq["fps"]) == {"simulate", "simulate_device", "render_device", "simulate_and_render_device",
+                                   "render_cpu", "simulate_and_render_cpu"}  # fmt: skip
+        # the simulation again with every Newton solve on the device schedule (here the CPU: round-off apart)
+        counters = seq["device_solver_counters"]
+        assert counters["device_island_solves"] == counters["island_solves"] > 0
+        assert counters["device_handed_back"] == 0 and seq["device_solver_com_max_abs_diff_m"] < 1e-9
         assert all(v > 0 for v in seq["fps"].values())
         assert all(v == 0 for k, v in seq["pose_device_vs_cpu"].items() if k.endswith("diff") or "_diff_" in k)
         assert len(seq["maps_device_vs_cpu"]) == 13
