@@ -58,7 +58,8 @@ from data_gen.sim.fused_newton import (
     _pair_at,
     _pair_out_of_reach,
     _scene_sphere,
-    _solve_start,
+    _scene_distance,
+    _step_limits,
     _update_norms,
     scene_args,
 )
@@ -133,10 +134,14 @@ def _add_block(hess: wp.array(dtype=wp.float64), n_size: int, matrix_base: int, 
 def start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Island,
                  threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64), limits_given: int,
                  tolerance: wp.float64, gravity_norm: wp.float64):  # fmt: skip
-    """Island ``isl``: its limits and scene margins (:func:`_solve_start`), cleared counters, phase EVALUATE, and
-    the dense envelope (every row's first column 0; padding rows their diagonal only)."""
+    """Island ``isl``: unless ``limits_given``, its limits (:func:`data_gen.sim.fused_newton._step_limits`), cleared
+    counters, phase EVALUATE, and the dense envelope (every row's first column 0; padding rows their diagonal
+    only). (The scene margins: :func:`margins_kernel`, a thread per sphere.)"""
     isl = wp.tid()
-    _solve_start(bd, sc, st, threshold, trust_m, isl, limits_given, tolerance, gravity_norm)
+    if limits_given == 0:
+        thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
+        threshold[isl] = thr_isl
+        trust_m[isl] = trust_isl
     for k in range(NUM_STATS):
         wk.stats[isl, k] = 0
     isl_info.phase[isl] = EVALUATE
@@ -145,6 +150,19 @@ def start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Is
     for r in range(n_size):
         wk.first[isl * n_size + r] = wp.where(r < bd.island_dofs[isl], 0, r)
     isl_info.iterating[0] = 1
+
+
+@wp.kernel
+def margins_kernel(bd: Bodies, sc: SceneArgs, st: StepData):
+    """Sphere s of object o: how far its start position is from touching the scene (m), or -1 where it carries a
+    frozen friction force (always evaluated), as :func:`data_gen.sim.fused_newton._scene_margins` computes it per
+    island: :func:`scene_kernel` skips a sphere whose margin exceeds its motion bound."""
+    o, s = wp.tid()
+    m = wp.float64(-1.0)
+    if st.stiffness[o, s] != _ZERO and st.friction_scale[o, s] <= _ZERO:
+        sdf, n = _scene_distance(sc, st.start_x[o, s])
+        m = sdf - bd.radius[o, s]
+    st.margin[o, s] = m
 
 
 @wp.kernel
@@ -507,6 +525,11 @@ def iterating_kernel(isl_info: Island):
         isl_info.iterating[0] = 1
 
 
+_WORK_INPUTS = frozenset({"q"})
+"""What a solve reads of :class:`Work` before writing it: the start state (the matrices, factors, updates, envelope
+and counters are written first)."""
+
+
 class StructMirror:
     """Copies, on another warp device, of the arrays a warp struct instance holds: allocated at first use (again
     when a source array changes shape or type) and refreshed by copy. Fields that share memory in the source
@@ -516,9 +539,10 @@ class StructMirror:
         self.device = wp.get_device(device)
         self._buffers: dict[tuple[str, str], wp.array] = {}
 
-    def copy(self, tag: str, source, struct_type, refresh: bool = True):
+    def copy(self, tag: str, source, struct_type, refresh: bool | frozenset[str] = True):
         """A ``struct_type`` instance whose arrays are this device's copies of ``source``'s (filled from them with
-        ``refresh``, else only allocated) and whose other fields are ``source``'s. ``tag`` names the source."""
+        ``refresh``, or only those named in it; the others only allocated: scratch the launches write first) and
+        whose other fields are ``source``'s. ``tag`` names the source."""
         out = struct_type()
         by_address: dict[int, wp.array] = {}
         for name in struct_type.vars:
@@ -535,7 +559,7 @@ class StructMirror:
             buffer = self._buffers.get(key)
             if buffer is None or buffer.shape != value.shape or buffer.dtype != value.dtype:
                 buffer = self._buffers[key] = wp.empty(value.shape, dtype=value.dtype, device=self.device)
-            if refresh and value.size:
+            if value.size and (refresh is True or (not isinstance(refresh, bool) and name in refresh)):
                 wp.copy(buffer, value)
             if value.ptr:
                 by_address[value.ptr] = buffer
@@ -598,7 +622,7 @@ class DeviceNewton:
         if self._scene is None:
             self._scene = scene_args(f.contact.scene, self.device.alias)
         step = m.copy("step", st, StepData)
-        work = m.copy("work", f.work, Work)
+        work = m.copy("work", f.work, Work, refresh=_WORK_INPUTS)
         limits = [m.copy(name, _limits_of(array), _Limits).values for name, array in (("threshold", threshold),
                                                                                        ("trust", trust))]  # fmt: skip
         return self._bodies, self._scene, step, work, limits[0], limits[1]
@@ -628,6 +652,17 @@ class DeviceNewton:
         if st.num_pairs:
             wp.launch(pairs_kernel, dim=st.num_pairs, device=device, inputs=[bd, st, wk, info])
 
+    def _start(self, bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, info: Island, threshold: wp.array,
+               trust: wp.array, limits_given: bool, tolerance: float) -> None:  # fmt: skip
+        """A solve's start: the islands' limits (unless given), counters and phases; every sphere's scene margin."""
+        f = self.fused
+        n, num_spheres = f._keep["radius"].shape
+        wp.launch(start_kernel, dim=f.shape[0], device=self.device, inputs=[
+            bd, sc, st, wk, info, threshold, trust, int(limits_given), wp.float64(tolerance),
+            wp.float64(f._gravity_norm),
+        ])  # fmt: skip
+        wp.launch(margins_kernel, dim=(n, num_spheres), device=self.device, inputs=[bd, sc, st])
+
     def _factor_blocked(self, bd: Bodies, wk: Work, info: Island) -> None:
         """The update ``dq`` of every island in EVALUATE or HAVE by the blocked factorisation, again with the
         ridge where the first left it non-finite (:func:`factor_start_kernel`, :func:`ridge_kernel`)."""
@@ -649,9 +684,7 @@ class DeviceNewton:
         f.q.copy_(q.reshape(-1))
         bd, sc, st, wk, threshold, trust = self._structs(f._step_data(objective))
         info = self._island_info()
-        wp.launch(start_kernel, dim=n_isl, device=self.device, inputs=[
-            bd, sc, st, wk, info, threshold, trust, 0, wp.float64(1.0), wp.float64(f._gravity_norm),
-        ])  # fmt: skip (the scene margins the sphere launch reads)
+        self._start(bd, sc, st, wk, info, threshold, trust, False, 1.0)
         mode = DERIVATIVES if derivatives else VALUE
         wp.launch(load_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info, int(mode)])
         self._launch_terms(bd, sc, st, wk, info)
@@ -689,10 +722,7 @@ class DeviceNewton:
             wp.launch(iterating_kernel, dim=n_isl, device=device, inputs=[info])
 
         def schedule() -> None:
-            wp.launch(start_kernel, dim=n_isl, device=device, inputs=[
-                bd, sc, st, wk, info, threshold, trust, int(given), wp.float64(settings.tolerance),
-                wp.float64(f._gravity_norm),
-            ])  # fmt: skip
+            self._start(bd, sc, st, wk, info, threshold, trust, given, settings.tolerance)
             wp.capture_while(info.iterating, iteration)
 
         if self.graph:
