@@ -29,19 +29,22 @@ THREADS = 64
 
 
 @wp.func
-def _half_sum(a: wp.float64, b: wp.float64):
-    return wp.float64(0.5) * (a + b)
+def _past_end(k0: int, n: int):
+    """1.0 at the rows of the block starting at row ``k0`` that lie past the matrix's end (``n`` rows), else 0.0
+    (a tile of ``TILE``). Built from warp's own operators only: a user function passed to ``wp.tile_map`` does not
+    enter warp's module hash (warp 1.19), so a change to it would not recompile the kernel."""
+    rows = wp.tile_arange(TILE, dtype=wp.int32) - wp.tile_full(shape=TILE, value=n - 1 - k0, dtype=wp.int32)
+    clipped = wp.tile_map(wp.min, wp.tile_map(wp.max, rows, wp.tile_zeros(shape=TILE, dtype=wp.int32)),
+                          wp.tile_ones(shape=TILE, dtype=wp.int32))  # fmt: skip
+    return wp.tile_astype(clipped, wp.float64)
 
 
 @wp.func
-def _negative(a: wp.float64):
-    return -a
-
-
-@wp.func
-def _diagonal(i: wp.int32, size: wp.int32, inside: wp.float64):
-    """What the diagonal of a block gets at global row ``i``: ``inside`` within the matrix, 1 past its end."""
-    return wp.where(i < size, inside, wp.float64(1.0))
+def _symmetric_block(hess: wp.array2d(dtype=wp.float64), i0: int, k0: int):
+    """Block (i0, k0) of ``(H + H^T) / 2``."""
+    a = wp.tile_load(hess, shape=(TILE, TILE), offset=(i0, k0))
+    b = wp.tile_load(hess, shape=(TILE, TILE), offset=(k0, i0))
+    return (a + wp.tile_transpose(b)) * wp.float64(0.5)
 
 
 @wp.kernel
@@ -64,11 +67,10 @@ def blocked_cholesky_solve_kernel(
     r = ridge[isl]
     for k in range(nb):
         k0 = k * TILE
-        rows = wp.tile_arange(TILE, dtype=wp.int32) + wp.tile_full(shape=TILE, value=k0, dtype=wp.int32)
-        size = wp.tile_full(shape=TILE, value=n, dtype=wp.int32)
-        a = wp.tile_map(_half_sum, wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(k0, k0)),
-                        wp.tile_transpose(wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(k0, k0))))  # fmt: skip
-        a = wp.tile_diag_add(a, wp.tile_map(_diagonal, rows, size, wp.tile_full(shape=TILE, value=r, dtype=wp.float64)))
+        past = _past_end(k0, n)
+        # the ridge inside the matrix, ones past its end (those rows are then an identity block, never stored)
+        a = wp.tile_diag_add(_symmetric_block(hess[isl], k0, k0),
+                             (wp.tile_ones(shape=TILE, dtype=wp.float64) - past) * r + past)  # fmt: skip
         for j in range(k):
             lkj = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE))
             wp.tile_matmul(lkj, wp.tile_transpose(lkj), a, alpha=wp.float64(-1.0), beta=wp.float64(1.0))
@@ -76,39 +78,32 @@ def blocked_cholesky_solve_kernel(
         wp.tile_store(chol[isl], lkk, offset=(k0, k0))
         for i in range(k + 1, nb):
             i0 = i * TILE
-            b = wp.tile_map(_half_sum, wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(i0, k0)),
-                            wp.tile_transpose(wp.tile_load(hess[isl], shape=(TILE, TILE), offset=(k0, i0))))  # fmt: skip
+            b = _symmetric_block(hess[isl], i0, k0)
             for j in range(k):
                 lij = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(i0, j * TILE))
                 lkj = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE))
                 wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(-1.0), beta=wp.float64(1.0))
             # L_ik L_kk^T = B: L_kk L_ik^T = B^T
             wp.tile_store(chol[isl], wp.tile_transpose(wp.tile_lower_solve(lkk, wp.tile_transpose(b))), offset=(i0, k0))
-    # L y = -g, then L^T x = y (x in dq); diagonal blocks with ones past the matrix's end
+    # L y = -g, then L^T x = y (x in dq); the diagonal blocks as stored (zero past the end) plus ones there
     for k in range(nb):
         k0 = k * TILE
-        rows = wp.tile_arange(TILE, dtype=wp.int32) + wp.tile_full(shape=TILE, value=k0, dtype=wp.int32)
-        ones_past = wp.tile_map(_diagonal, rows, wp.tile_full(shape=TILE, value=n, dtype=wp.int32),
-                                wp.tile_zeros(shape=TILE, dtype=wp.float64))  # fmt: skip
-        y = wp.tile_map(_negative, wp.tile_load(grad[isl], shape=(TILE, 1), offset=(k0, 0)))
+        y = -wp.tile_load(grad[isl], shape=(TILE, 1), offset=(k0, 0))
         for j in range(k):
             wp.tile_matmul(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE)),
                            wp.tile_load(dq[isl], shape=(TILE, 1), offset=(j * TILE, 0)), y,
                            alpha=wp.float64(-1.0), beta=wp.float64(1.0))  # fmt: skip
-        lkk = wp.tile_diag_add(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, k0)), ones_past)
+        lkk = wp.tile_diag_add(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, k0)), _past_end(k0, n))
         wp.tile_store(dq[isl], wp.tile_lower_solve(lkk, y), offset=(k0, 0))
     for kk in range(nb):
         k = nb - 1 - kk
         k0 = k * TILE
-        rows = wp.tile_arange(TILE, dtype=wp.int32) + wp.tile_full(shape=TILE, value=k0, dtype=wp.int32)
-        ones_past = wp.tile_map(_diagonal, rows, wp.tile_full(shape=TILE, value=n, dtype=wp.int32),
-                                wp.tile_zeros(shape=TILE, dtype=wp.float64))  # fmt: skip
         x = wp.tile_load(dq[isl], shape=(TILE, 1), offset=(k0, 0))
         for j in range(k + 1, nb):
             wp.tile_matmul(wp.tile_transpose(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(j * TILE, k0))),
                            wp.tile_load(dq[isl], shape=(TILE, 1), offset=(j * TILE, 0)), x,
                            alpha=wp.float64(-1.0), beta=wp.float64(1.0))  # fmt: skip
-        lkk = wp.tile_diag_add(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, k0)), ones_past)
+        lkk = wp.tile_diag_add(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, k0)), _past_end(k0, n))
         wp.tile_store(dq[isl], wp.tile_upper_solve(wp.tile_transpose(lkk), x), offset=(k0, 0))
 
 
