@@ -28,6 +28,7 @@ On CUDA the atomic adds make the sums' order, and so the last bits, vary between
 from __future__ import annotations
 
 import logging
+import sys
 
 import torch
 import warp as wp
@@ -585,6 +586,9 @@ class DeviceNewton:
         self.device = self.mirror.device if self.mirror is not None else wp.get_device(fused.device)
         self.graph = bool(graph) and self.device.is_cuda
         self.tile_factor = self.device.is_cuda if tile_factor is None else bool(tile_factor)
+        if self.graph:  # a module cannot be loaded while a graph is captured: load both here
+            for module in (sys.modules[__name__], sys.modules[blocked_cholesky_solve.__module__]):
+                wp.load_module(module, device=self.device)
         self._info: Island | None = None
         self._info_key: tuple | None = None
         self._bodies_key: tuple | None = None

@@ -154,7 +154,7 @@ def _stack(throw: bool, device_newton: bool, frames: int = 20, handles: int = 1,
 
 
 @pytest.mark.parametrize("throw", [False, True], ids=["dropped", "thrown"])
-def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_repeats(throw):
+def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_repeats(throw, monkeypatch):
     """Whole simulations (landing, stacking, a thrown box hitting the stack, sleep): every island solve went
     through the schedule (none handed back), the trajectories agree with the fused kernel's sub-step launch to
     round-off (1.3e-13 m measured; 1e-9 m asserted), the stack rests one box height per box, and a second run
@@ -163,6 +163,12 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
     com_f, com_d, com_again = (np.stack([t.com_m for t in r.objects]) for r in (fused, device, again))
     assert np.array_equal(com_d, com_again)
     assert np.abs(com_d - com_f).max() < 1e-9, np.abs(com_d - com_f).max()
+    # the GPU's factorisation (a block per island) in the whole simulation too
+    init = DeviceNewton.__init__
+    monkeypatch.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=True, tile_factor=None:
+                        init(self, fused, device, graph, True))  # fmt: skip
+    tiled = _stack(throw, True)
+    assert np.abs(np.stack([t.com_m for t in tiled.objects]) - com_f).max() < 1e-9
     np.testing.assert_allclose(np.diff(np.sort(com_d[:, -1, 2])), 0.1, atol=0.01)
     counters = device.info.counters
     assert counters["device_island_solves"] == counters["island_solves"] > 0
