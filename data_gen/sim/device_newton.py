@@ -641,6 +641,7 @@ class DeviceNewton:
         for dst, src in ((f.work.q, work.q), (f.work.stats, work.stats), (f._limits[0], threshold),
                          (f._limits[1], trust), (st.margin, step.margin), (st.moved, step.moved)):  # fmt: skip
             wp.copy(dst, src)
+        wp.synchronize_device(self.device)  # (the host reads them next)
 
     def _launch_terms(self, bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, info: Island) -> None:
         """The term launches at the state each island has loaded (those whose mode is not NOTHING)."""
