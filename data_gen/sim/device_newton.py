@@ -65,7 +65,7 @@ from data_gen.sim.fused_newton import (
     scene_args,
 )
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
-from data_gen.sim.tile_cholesky import blocked_cholesky_solve
+from data_gen.sim.tile_cholesky import block_envelope, blocked_cholesky_solve, blocks
 
 wp.set_module_options({"enable_backward": False})
 logger = logging.getLogger(__name__)
@@ -136,8 +136,8 @@ def start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Is
                  threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64), limits_given: int,
                  tolerance: wp.float64, gravity_norm: wp.float64):  # fmt: skip
     """Island ``isl``: unless ``limits_given``, its limits (:func:`data_gen.sim.fused_newton._step_limits`), cleared
-    counters, phase EVALUATE, and the dense envelope (every row's first column 0; padding rows their diagonal
-    only). (The scene margins: :func:`margins_kernel`, a thread per sphere.)"""
+    counters and phase EVALUATE. (The scene margins: :func:`margins_kernel`, a thread per sphere; the envelope of
+    each factorisation: :func:`row_envelope_kernel`.)"""
     isl = wp.tid()
     if limits_given == 0:
         thr_isl, trust_isl = _step_limits(bd, st, isl, tolerance, gravity_norm)
@@ -147,9 +147,6 @@ def start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Is
         wk.stats[isl, k] = 0
     isl_info.phase[isl] = EVALUATE
     isl_info.mode[isl] = NOTHING
-    n_size = bd.island_size
-    for r in range(n_size):
-        wk.first[isl * n_size + r] = wp.where(r < bd.island_dofs[isl], 0, r)
     isl_info.iterating[0] = 1
 
 
@@ -388,6 +385,28 @@ def _checked_start(bd: Bodies, wk: Work, isl_info: Island, isl: int, phase: int)
 
 
 @wp.kernel
+def row_envelope_kernel(bd: Bodies, wk: Work, isl_info: Island):
+    """Row r of island ``isl`` (in EVALUATE or HAVE): the first column of the envelope the one-thread Cholesky
+    (:func:`data_gen.sim.fused_newton._cholesky`) works in: that of the first non-zero of ``H + H^T`` left of the
+    diagonal, rounded down to a multiple of 4 (that factorisation reads four entries at a time), or r itself (and
+    on padding rows). A factor keeps its matrix's envelope, so the entries left of it are zero and skipped, as
+    the fused kernel's band does; a pile's objects touch their neighbours only."""
+    isl, r = wp.tid()
+    phase = isl_info.phase[isl]
+    if phase != EVALUATE and phase != HAVE:
+        return
+    n_size = bd.island_size
+    base = isl * n_size * n_size
+    first = r
+    if r < bd.island_dofs[isl]:
+        for c in range(r):
+            if wk.hess[base + r * n_size + c] != _ZERO or wk.hess[base + c * n_size + r] != _ZERO:
+                first = c - c % 4
+                break
+    wk.first[isl * n_size + r] = first
+
+
+@wp.kernel
 def factor_start_kernel(bd: Bodies, wk: Work, isl_info: Island):
     """Before the blocked factorisation (:mod:`data_gen.sim.tile_cholesky`): islands in EVALUATE or HAVE that pass
     :func:`_checked_start` are marked for it, without a ridge."""
@@ -593,6 +612,7 @@ class DeviceNewton:
         self._info_key: tuple | None = None
         self._bodies_key: tuple | None = None
         self._scene: SceneArgs | None = None
+        self._first_block: wp.array | None = None  # (n_isl, blocks) the blocked factorisation's envelope
 
     def _island_info(self) -> Island:
         """The per-island arrays for the fused workspace's grouping now (remade when it changed), on this
@@ -669,15 +689,20 @@ class DeviceNewton:
         wp.launch(margins_kernel, dim=(n, num_spheres), device=self.device, inputs=[bd, sc, st])
 
     def _factor_blocked(self, bd: Bodies, wk: Work, info: Island) -> None:
-        """The update ``dq`` of every island in EVALUATE or HAVE by the blocked factorisation, again with the
-        ridge where the first left it non-finite (:func:`factor_start_kernel`, :func:`ridge_kernel`)."""
+        """The update ``dq`` of every island in EVALUATE or HAVE by the blocked factorisation inside its matrix's
+        block envelope (a pile's matrix is nearly block-banded), again with the ridge where the first left it
+        non-finite (:func:`factor_start_kernel`, :func:`ridge_kernel`)."""
         n_isl, size = self.fused.shape
         matrices = (_view(wk.hess, (n_isl, size, size)), _view(wk.grad, (n_isl, size, 1)))
         outputs = (_view(wk.chol, (n_isl, size, size)), _view(wk.dq, (n_isl, size, 1)))
+        key = (n_isl, blocks(size))
+        if self._first_block is None or self._first_block.shape != key:
+            self._first_block = wp.zeros(key, dtype=wp.int32, device=self.device)
         wp.launch(factor_start_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info])
-        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs)
+        block_envelope(matrices[0], info.factor, self._first_block)
+        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs, first_block=self._first_block)
         wp.launch(ridge_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info])
-        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs)
+        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs, first_block=self._first_block)
 
     def evaluate(self, objective, q: torch.Tensor,
                  derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:  # fmt: skip
@@ -721,6 +746,8 @@ class DeviceNewton:
             self._launch_terms(bd, sc, st, wk, info)
             if self.tile_factor:
                 self._factor_blocked(bd, wk, info)
+            else:
+                wp.launch(row_envelope_kernel, dim=(n_isl, f.shape[1]), device=device, inputs=[bd, wk, info])
             wp.launch(direction_kernel, dim=n_isl, device=device,
                       inputs=[bd, wk, info, threshold, trust, int(self.tile_factor)])  # fmt: skip
             wp.capture_while(info.searching, search)

@@ -53,12 +53,16 @@ def blocked_cholesky_solve_kernel(
     grad: wp.array3d(dtype=wp.float64),
     ridge: wp.array(dtype=wp.float64),
     active: wp.array(dtype=wp.int32),
+    first_block: wp.array2d(dtype=wp.int32),
     chol: wp.array3d(dtype=wp.float64),
     dq: wp.array3d(dtype=wp.float64),
 ):
     """Island ``isl`` (one block of threads) with ``active[isl]``: its factor L of ``(H + H^T) / 2 + ridge I``
     (``hess`` (n_isl, N, N)) in the lower blocks of ``chol`` (n_isl, N, N) and ``dq = -(L L^T)^-1 g`` (``grad`` and
-    ``dq`` (n_isl, N, 1))."""
+    ``dq`` (n_isl, N, 1)). ``first_block`` (n_isl, blocks): each block row's first block column holding a non-zero
+    (:func:`block_envelope_kernel`; zeros: dense). A Cholesky factor's rows keep their matrix's envelope, so block
+    (i, k) of L is zero left of ``first_block[i]``: those blocks are neither computed nor read (blocks of ``chol``
+    there keep whatever they held)."""
     isl = wp.tid()
     if active[isl] == 0:
         return
@@ -67,29 +71,33 @@ def blocked_cholesky_solve_kernel(
     r = ridge[isl]
     for k in range(nb):
         k0 = k * TILE
+        fk = first_block[isl, k]
         past = _past_end(k0, n)
         # the ridge inside the matrix, ones past its end (those rows are then an identity block, never stored)
         a = wp.tile_diag_add(_symmetric_block(hess[isl], k0, k0),
                              (wp.tile_ones(shape=TILE, dtype=wp.float64) - past) * r + past)  # fmt: skip
-        for j in range(k):
+        for j in range(fk, k):
             lkj = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE))
             wp.tile_matmul(lkj, wp.tile_transpose(lkj), a, alpha=wp.float64(-1.0), beta=wp.float64(1.0))
         lkk = wp.tile_cholesky(a)
         wp.tile_store(chol[isl], lkk, offset=(k0, k0))
         for i in range(k + 1, nb):
-            i0 = i * TILE
-            b = _symmetric_block(hess[isl], i0, k0)
-            for j in range(k):
-                lij = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(i0, j * TILE))
-                lkj = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE))
-                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(-1.0), beta=wp.float64(1.0))
-            # L_ik L_kk^T = B: L_kk L_ik^T = B^T
-            wp.tile_store(chol[isl], wp.tile_transpose(wp.tile_lower_solve(lkk, wp.tile_transpose(b))), offset=(i0, k0))
+            fi = first_block[isl, i]
+            if fi <= k:  # (the same for every thread of the block)
+                i0 = i * TILE
+                b = _symmetric_block(hess[isl], i0, k0)
+                for j in range(wp.max(fi, fk), k):
+                    lij = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(i0, j * TILE))
+                    lkj = wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE))
+                    wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(-1.0), beta=wp.float64(1.0))
+                # L_ik L_kk^T = B: L_kk L_ik^T = B^T
+                wp.tile_store(chol[isl], wp.tile_transpose(wp.tile_lower_solve(lkk, wp.tile_transpose(b))),
+                              offset=(i0, k0))  # fmt: skip
     # L y = -g, then L^T x = y (x in dq); the diagonal blocks as stored (zero past the end) plus ones there
     for k in range(nb):
         k0 = k * TILE
         y = -wp.tile_load(grad[isl], shape=(TILE, 1), offset=(k0, 0))
-        for j in range(k):
+        for j in range(first_block[isl, k], k):
             wp.tile_matmul(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, j * TILE)),
                            wp.tile_load(dq[isl], shape=(TILE, 1), offset=(j * TILE, 0)), y,
                            alpha=wp.float64(-1.0), beta=wp.float64(1.0))  # fmt: skip
@@ -100,19 +108,54 @@ def blocked_cholesky_solve_kernel(
         k0 = k * TILE
         x = wp.tile_load(dq[isl], shape=(TILE, 1), offset=(k0, 0))
         for j in range(k + 1, nb):
-            wp.tile_matmul(wp.tile_transpose(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(j * TILE, k0))),
-                           wp.tile_load(dq[isl], shape=(TILE, 1), offset=(j * TILE, 0)), x,
-                           alpha=wp.float64(-1.0), beta=wp.float64(1.0))  # fmt: skip
+            if first_block[isl, j] <= k:
+                wp.tile_matmul(wp.tile_transpose(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(j * TILE, k0))),
+                               wp.tile_load(dq[isl], shape=(TILE, 1), offset=(j * TILE, 0)), x,
+                               alpha=wp.float64(-1.0), beta=wp.float64(1.0))  # fmt: skip
         lkk = wp.tile_diag_add(wp.tile_load(chol[isl], shape=(TILE, TILE), offset=(k0, k0)), _past_end(k0, n))
         wp.tile_store(dq[isl], wp.tile_upper_solve(wp.tile_transpose(lkk), x), offset=(k0, 0))
 
 
+@wp.kernel
+def block_envelope_kernel(hess: wp.array3d(dtype=wp.float64), active: wp.array(dtype=wp.int32),
+                          first_block: wp.array2d(dtype=wp.int32)):  # fmt: skip
+    """Block row i of island ``isl``'s matrix (``active``): the first block column k <= i where ``H + H^T`` has a
+    non-zero entry in rows of block i (i itself when none: the diagonal block is always factorised)."""
+    isl, i = wp.tid()
+    if active[isl] == 0:
+        return
+    n = hess.shape[1]
+    r_end = wp.min((i + 1) * TILE, n)
+    first = i
+    for r in range(i * TILE, r_end):
+        c = int(0)
+        while c < first * TILE:  # only columns left of the first found so far can lower it
+            if hess[isl, r, c] != wp.float64(0.0) or hess[isl, c, r] != wp.float64(0.0):
+                first = c // TILE
+            c += 1
+    first_block[isl, i] = first
+
+
+def blocks(size: int) -> int:
+    """Blocks of :data:`TILE` per side of a ``size`` x ``size`` matrix."""
+    return (size + TILE - 1) // TILE
+
+
 def blocked_cholesky_solve(hess: wp.array, grad: wp.array, ridge: wp.array, active: wp.array, chol: wp.array,
-                           dq: wp.array) -> None:  # fmt: skip
+                           dq: wp.array, first_block: wp.array | None = None) -> None:  # fmt: skip
     """Launch :func:`blocked_cholesky_solve_kernel` over the islands (``hess``'s first axis), a block of
-    :data:`THREADS` threads each."""
-    wp.launch_tiled(blocked_cholesky_solve_kernel, dim=[hess.shape[0]], inputs=[hess, grad, ridge, active, chol, dq],
-                    block_dim=THREADS, device=hess.device)  # fmt: skip
+    :data:`THREADS` threads each; with ``first_block`` (n_isl, :func:`blocks`) from :func:`block_envelope_kernel`
+    the blocks outside the matrices' envelopes are skipped, without it the matrices are taken as dense."""
+    if first_block is None:
+        first_block = wp.zeros((hess.shape[0], blocks(hess.shape[1])), dtype=wp.int32, device=hess.device)
+    wp.launch_tiled(blocked_cholesky_solve_kernel, dim=[hess.shape[0]],
+                    inputs=[hess, grad, ridge, active, first_block, chol, dq], block_dim=THREADS,
+                    device=hess.device)  # fmt: skip
 
 
-__all__ = ["TILE", "THREADS", "blocked_cholesky_solve", "blocked_cholesky_solve_kernel"]
+def block_envelope(hess: wp.array, active: wp.array, first_block: wp.array) -> None:
+    """Launch :func:`block_envelope_kernel`: ``first_block`` (n_isl, :func:`blocks`) of the active islands."""
+    wp.launch(block_envelope_kernel, dim=first_block.shape, inputs=[hess, active, first_block], device=hess.device)
+
+
+__all__ = ["TILE", "THREADS", "block_envelope", "blocked_cholesky_solve", "blocked_cholesky_solve_kernel", "blocks"]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from data_gen.sim.tile_cholesky import TILE, blocked_cholesky_solve
+from data_gen.sim.tile_cholesky import TILE, block_envelope, blocked_cholesky_solve, blocks
 
 
 def _arrays(hess: np.ndarray, grad: np.ndarray, ridge, active):
@@ -59,3 +59,56 @@ def test_an_indefinite_matrix_leaves_a_non_finite_direction_and_the_ridge_is_add
     blocked_cholesky_solve(*arrays)
     want = -np.linalg.solve(singular[0] + 1e-6 * np.eye(n), grad[0])
     np.testing.assert_allclose(arrays[5].numpy()[0, :, 0], want, rtol=1e-9, atol=0.0)
+
+
+def _envelope_numpy(hess: np.ndarray) -> np.ndarray:
+    """Per block row: the first block column holding a non-zero of H + H^T (at most the row's own block)."""
+    n_isl, n, _ = hess.shape
+    nb = blocks(n)
+    out = np.zeros((n_isl, nb), dtype=np.int32)
+    nonzero = (hess != 0) | (hess.transpose(0, 2, 1) != 0)
+    for isl in range(n_isl):
+        for i in range(nb):
+            rows = nonzero[isl, i * TILE:(i + 1) * TILE, : i * TILE]
+            cols = np.nonzero(rows.any(0))[0]
+            out[isl, i] = cols[0] // TILE if len(cols) else i
+    return out
+
+
+@pytest.mark.parametrize("n", [96, 204, 600])
+def test_block_envelope_skips_zero_blocks_and_gives_the_dense_result(n):
+    """Pile-like matrices: a chain of 12-unknown objects coupled to their neighbours, plus one long-range coupling
+    (a box touching one far down the column). The envelope kernel finds numpy's first non-zero blocks; the factor
+    and direction computed inside it equal numpy's, though every block of ``chol`` outside starts as garbage."""
+    rng = np.random.default_rng(n)
+    n_isl = 2
+    hess = np.zeros((n_isl, n, n))
+    for isl in range(n_isl):
+        for o in range(n // 12):
+            a = rng.standard_normal((12, 12))
+            hess[isl, 12 * o:12 * o + 12, 12 * o:12 * o + 12] = a @ a.T + 40 * np.eye(12)
+            if o:
+                c = 0.3 * rng.standard_normal((12, 12))
+                hess[isl, 12 * o:12 * o + 12, 12 * o - 12:12 * o] = c
+                hess[isl, 12 * o - 12:12 * o, 12 * o:12 * o + 12] = c.T
+    far = 0.3 * rng.standard_normal((12, 12))  # island 1: its last object touches its fourth
+    hess[1, n - 12:, 36:48] = far
+    hess[1, 36:48, n - 12:] = far.T
+    grad = rng.standard_normal((n_isl, n))
+    arrays = _arrays(hess, grad, [0.0, 0.0], [1, 1])
+    first = wp.zeros((n_isl, blocks(n)), dtype=wp.int32)
+    block_envelope(arrays[0], arrays[3], first)
+    want_first = _envelope_numpy(hess)
+    assert np.array_equal(first.numpy(), want_first)
+    assert want_first[0, -1] >= blocks(n) - 2 and want_first[1, -1] == 1  # banded; the far coupling widens it
+    blocked_cholesky_solve(*arrays, first_block=first)
+    factor = arrays[4].numpy()
+    for isl in range(n_isl):
+        want = np.linalg.cholesky(hess[isl])
+        inside = np.zeros((n, n), dtype=bool)  # the envelope's blocks, where the factor was computed
+        for i, f in enumerate(want_first[isl]):
+            inside[i * TILE:(i + 1) * TILE, f * TILE:(i + 1) * TILE] = True
+        got = np.where(inside, np.tril(factor[isl]), 0.0)
+        assert np.abs(got - want).max() <= 1e-13 * np.abs(want).max()
+        want_dq = -np.linalg.solve(hess[isl], grad[isl])
+        assert np.abs(arrays[5].numpy()[isl, :, 0] - want_dq).max() <= 1e-12 * np.abs(want_dq).max()
