@@ -22,6 +22,7 @@ that the resting pile heights agree. Writes bench/results/peers.json and peers.p
                                               # every scene first runs once untimed (kernel loading); each
                                               # PyBullet "run" is the fastest of --peer-runs (10) back to back
     python bench/bench_peers.py --batched     # also NewtPhys without the fused Newton kernel, side by side
+    python bench/bench_peers.py --device-newton [--device cuda]   # also the device schedule (DeviceNewton), side by side
     python bench/bench_peers.py --quick       # stiff_10 and soft_5 only (make bench)
 """
 
@@ -160,6 +161,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--batched", action="store_true",
                         help="also run NewtPhys without the fused Newton kernel (Simulator(fused_newton=False)) in the "
                              "same run: the kernel's own speed-up, measured side by side")  # fmt: skip
+    parser.add_argument("--device-newton", action="store_true",
+                        help="also run NewtPhys with its Newton solves as the device schedule (Simulator(device_newton="
+                             "True), on --device) in the same run, with its final centres against the fused path's")  # fmt: skip
+    parser.add_argument("--device", default="cpu", help="the device of --device-newton (cpu, cuda)")
     parser.add_argument("--repeat", type=int, default=1,
                         help="run each engine this many times per scene and keep the fastest (CPU time) run of each: "
                              "the machines are noisy")  # fmt: skip
@@ -180,18 +185,24 @@ def main(argv: list[str] | None = None) -> dict:
     rows = []
     for name in args.scenes:
         scene = SCENES[name]
-        peers, ours_runs, batched_runs = [], [], []
+        peers, ours_runs, batched_runs, device_runs = [], [], [], []
+        on_device = dict(device=args.device, device_newton=True)
         # untimed warm-up: a process's first run loads (on a fresh machine: compiles, tens of seconds) warp's kernels
         run_newtphys(scene, fused_newton=True)
         if args.batched:
             run_newtphys(scene, fused_newton=False)
+        if args.device_newton:
+            run_newtphys(scene, **on_device)
         for _ in range(args.repeat):  # interleaved: a slower or faster phase of the machine meets both engines
             peers.append(min((run_pybullet(scene) for _ in range(args.peer_runs)), key=lambda r: r["cpu_s"]))
             ours_runs.append(run_newtphys(scene))
             if args.batched:
                 batched_runs.append(run_newtphys(scene, fused_newton=False))
+            if args.device_newton:
+                device_runs.append(run_newtphys(scene, **on_device))
         peer, ours = (min(runs, key=lambda r: r["cpu_s"]) for runs in (peers, ours_runs))
         batched = min(batched_runs, key=lambda r: r["cpu_s"]) if args.batched else None
+        device_run = min(device_runs, key=lambda r: r["wall_s"]) if args.device_newton else None
         # each repeat's own ratio (its two runs minutes apart at most): how far the machine's phases move the ratio
         paired = sorted(o["cpu_s"] / max(p["cpu_s"], 1e-9) for o, p in zip(ours_runs, peers))
         rows.append({
@@ -203,6 +214,7 @@ def main(argv: list[str] | None = None) -> dict:
             "newtphys_cpu_per_object_s": ours["cpu_s"] / scene.count,
             "target_cpu_ratio": TARGET_CPU_RATIO[name],
             "newtphys_batched": batched,
+            "newtphys_device": device_run,
             "checks": {"newtphys": pile_checks(np.array(ours["final_com_m"])),
                        "pybullet": pile_checks(np.array(peer["final_com_m"]))},
         })  # fmt: skip
@@ -235,6 +247,16 @@ def main(argv: list[str] | None = None) -> dict:
             fused_cpu, batched_cpu = r["newtphys"]["cpu_s"], r["newtphys_batched"]["cpu_s"]
             print(f"| {r['scene']} | {fused_cpu:.2f} | {batched_cpu:.2f} | {batched_cpu / fused_cpu:.2f}x | "
                   f"{batched_cpu / max(r['pybullet']['cpu_s'], 1e-9):.0f}x |")  # fmt: skip
+    if args.device_newton:
+        print(f"\n| scene | NewtPhys wall (s), fused kernel | device schedule on {args.device}, wall (s) | its Newton "
+              "iterations (fused) | solves on the schedule / handed back | final centres apart (m) |")
+        print("|---|---|---|---|---|---|")
+        for r in rows:
+            ours, dev = r["newtphys"], r["newtphys_device"]
+            apart = float(np.abs(np.array(dev["final_com_m"]) - np.array(ours["final_com_m"])).max())
+            print(f"| {r['scene']} | {ours['wall_s']:.2f} | {dev['wall_s']:.2f} | {dev['newton_iterations']} "
+                  f"({ours['newton_iterations']}) | {dev['counters']['device_island_solves']} / "
+                  f"{dev['counters']['device_handed_back']} | {apart:.3g} |")  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"duration_s": DURATION_S, "fps": FPS, "repeat": args.repeat,
                                     "peer_runs": args.peer_runs, "rows": rows}, indent=2))  # fmt: skip
