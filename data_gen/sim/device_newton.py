@@ -595,15 +595,18 @@ class DeviceNewton:
     there: the model is copied once, each solve's step data and start state are copied over, and the state and
     counters come back when it ends; nothing crosses between its Newton iterations. With ``graph`` (CUDA) the
     schedule is captured as one CUDA graph per solve, its loops as conditional nodes (CUDA 12.4+), and launched
-    once: no host read inside the solve at all. With ``tile_factor`` (the default on CUDA) the islands' matrices
+    once: no host read inside the solve at all (``graph`` True on the CPU captures it too, with warp's CPU graph
+    recording: the same schedule replayed, how the tests check the captured structure without a GPU). With
+    ``tile_factor`` (the default on CUDA) the islands' matrices
     are factorised by :mod:`data_gen.sim.tile_cholesky`, a block of threads per island, instead of one thread
     each (the CPU's default: there a block is one thread, and the envelope factorisation costs less)."""
 
-    def __init__(self, fused: FusedNewton, device=None, graph: bool = True, tile_factor: bool | None = None) -> None:
+    def __init__(self, fused: FusedNewton, device=None, graph: bool | None = None,
+                 tile_factor: bool | None = None) -> None:  # fmt: skip
         self.fused = fused
         self.mirror = StructMirror(device) if device is not None else None
         self.device = self.mirror.device if self.mirror is not None else wp.get_device(fused.device)
-        self.graph = bool(graph) and self.device.is_cuda
+        self.graph = self.device.is_cuda if graph is None else bool(graph)
         self.tile_factor = self.device.is_cuda if tile_factor is None else bool(tile_factor)
         if self.graph:  # a module cannot be loaded while a graph is captured: load both here
             for module in (sys.modules[__name__], sys.modules[blocked_cholesky_solve.__module__]):

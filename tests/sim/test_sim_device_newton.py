@@ -163,10 +163,11 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
     com_f, com_d, com_again = (np.stack([t.com_m for t in r.objects]) for r in (fused, device, again))
     assert np.array_equal(com_d, com_again)
     assert np.abs(com_d - com_f).max() < 1e-9, np.abs(com_d - com_f).max()
-    # the GPU's factorisation (a block per island) in the whole simulation too
+    # the GPU's factorisation (a block per island) and its captured schedule (warp's CPU graph recording) in the
+    # whole simulation too
     init = DeviceNewton.__init__
-    monkeypatch.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=True, tile_factor=None:
-                        init(self, fused, device, graph, True))  # fmt: skip
+    monkeypatch.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None:
+                        init(self, fused, device, True, True))  # fmt: skip
     tiled = _stack(throw, True)
     assert np.abs(np.stack([t.com_m for t in tiled.objects]) - com_f).max() < 1e-9
     np.testing.assert_allclose(np.diff(np.sort(com_d[:, -1, 2])), 0.1, atol=0.01)
@@ -174,6 +175,23 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
     assert counters["device_island_solves"] == counters["island_solves"] > 0
     assert counters["device_handed_back"] == 0 and counters["unconverged_solves"] == 0
     assert fused.info.counters["device_island_solves"] == 0
+
+
+@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
+def test_the_captured_schedule_gives_the_direct_launches_bits(tile_factor):
+    """``graph=True``: the whole solve captured once (its two loops as ``wp.capture_while`` nodes, nested) and
+    replayed, as on CUDA; on the CPU warp records the same launches, so the captured solve must give the direct
+    one's bits, on the workspace's device and on copies, and the capture must not have fallen back."""
+    objective, fused, q0 = _objective(SCENES[1], speed=1.0)
+    settings = NewtonSettings(iterations=300, tolerance=1e-6, line_search_steps=8)
+    direct = DeviceNewton(fused, graph=False, tile_factor=tile_factor).solve(objective, q0, None, None, settings)
+    q, counters = direct.q.clone(), dict(direct.counters)
+    for device in (None, "cpu"):
+        captured = DeviceNewton(fused, device=device, graph=True, tile_factor=tile_factor)
+        out = captured.solve(objective, q0, None, None, settings)
+        assert captured.graph  # (a failed capture logs and turns it off)
+        assert torch.equal(out.q, q) and out.counters == counters
+    assert counters["evaluations"] > 0 and int(direct.iterations.max()) > 30  # both loops ran many times
 
 
 def _arrays(struct, struct_type) -> list:
