@@ -1918,6 +1918,21 @@ class FusedNewton:
         sub-step's sums of the scene forces per object slot and of the pair forces per group, summed in the
         launch (:func:`_force_sums`): a step's statistics without a pass over the per-sphere forces on the
         host."""
+        st, ss, num_sub, count, p, groups = self.prepare_substeps(
+            tm, tmdot, h_s, num_sub, gravity_m_s2, settings, scene_stiffness_n_m, smoothing_m, pairs, pair_mu,
+            pair_margin_m, pair_group,
+        )  # fmt: skip
+        self._recorded(("substeps",), substeps_kernel, [self.bodies, self.scene, st, self.work, ss]).launch()
+        return self.substep_result(num_sub, count, p, groups, pair_group is not None)
+
+    def prepare_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],
+                         num_sub: int | Sequence[int], gravity_m_s2: torch.Tensor, settings: NewtonSettings,
+                         scene_stiffness_n_m: torch.Tensor, smoothing_m: float | Sequence[float],
+                         pairs: PairSet | None, pair_mu: torch.Tensor, pair_margin_m: float,
+                         pair_group: np.ndarray | None = None) -> tuple[StepData, Substeps, int, list[int], int, int]:  # fmt: skip
+        """What :meth:`solve_substeps` binds before its launch (the same arguments): (step data, sub-step
+        arguments, the largest count, each island's count, the number of pairs, the number of pair groups);
+        :class:`~data_gen.sim.device_newton.DeviceNewton` runs its own schedule on them."""
         n_isl, _ = self.shape
         h_isl = [float(h_s)] * n_isl if isinstance(h_s, (int, float)) else [float(h) for h in h_s]
         count = [int(num_sub)] * n_isl if isinstance(num_sub, int) else [int(k) for k in num_sub]
@@ -1946,12 +1961,18 @@ class FusedNewton:
         ss.gravity_norm = wp.float64(self._gravity_norm)
         ss.iterations, ss.line_search_steps = int(settings.iterations), int(settings.line_search_steps)
         groups = self._bind_sums(ss, num_sub, p, pair_group)
-        self._recorded(("substeps",), substeps_kernel, [self.bodies, self.scene, st, self.work, ss]).launch()
+        return st, ss, num_sub, count, p, groups
+
+    def substep_result(self, num_sub: int, count: list[int], num_pairs: int, groups: int,
+                       with_sums: bool) -> SubstepResult | None:  # fmt: skip
+        """:meth:`solve_substeps`'s result from its buffers after the sub-steps ran (None: some island's sub-step
+        needs ``minimise``)."""
+        p = num_pairs
         out = self.sub_stats[:num_sub].to(torch.int64)  # (sub, n_isl, NUM_STATS)
         if bool((out[:, :, STATUS] != SOLVED).any()):
             return None
         scene_sums = pair_sums = None
-        if pair_group is not None:
+        if with_sums:
             scene_sums, pair_sums = self.sub_scene_sums[:num_sub], self.sub_pair_sums[:num_sub, :groups]
         totals = out.sum((0, 1)).tolist()
         counters = {
