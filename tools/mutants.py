@@ -290,6 +290,18 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("tile_cholesky_envelope_skips_the_first_coupled_block", "data_gen/sim/tile_cholesky.py",
            "            if fi <= k:  # (the same for every thread of the block)",
            "            if fi < k:  # (the same for every thread of the block)"),
+    Mutant("device_substeps_evaluate_every_candidate_pair", "data_gen/sim/device_newton.py",
+           "    if mode == NOTHING or k >= st.pair_start[isl] + st.live_count[isl]:",
+           "    if mode == NOTHING:"),
+    Mutant("device_substep_rates_from_the_step_start", "data_gen/sim/device_newton.py",
+           "                ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / h",
+           "                ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_pred[o, r, a]) / h"),
+    Mutant("device_substeps_go_on_after_a_hand_back", "data_gen/sim/device_newton.py",
+           "        isl_info.halted[isl] = 1\n        return",
+           "        return",
+           equivalent="a step whose sub-step is handed back returns None (its row's status) whatever the island's "
+                      "later sub-steps do, and the caller solves the step again one sub-step at a time: halting "
+                      "only saves their work"),
     Mutant("tile_cholesky_lower_blocks_skip_earlier_columns", "data_gen/sim/tile_cholesky.py",
            "                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(-1.0), beta=wp.float64(1.0))",
            "                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(0.0), beta=wp.float64(1.0))"),

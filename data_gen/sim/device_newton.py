@@ -29,7 +29,9 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Sequence
 
+import numpy as np
 import torch
 import warp as wp
 
@@ -50,7 +52,12 @@ from data_gen.sim.fused_newton import (
     FusedNewton,
     SceneArgs,
     StepData,
+    Substeps,
+    SubstepResult,
     Work,
+    _final_forces,
+    _force_sums,
+    _substep_start,
     _cholesky,
     _deformation_gradient,
     _load_state,
@@ -96,6 +103,7 @@ class Island:
     mass: wp.array(dtype=wp.float64)  # |dq|_M
     trial: wp.array(dtype=wp.int32)  # the line search's trial number
     factor: wp.array(dtype=wp.int32)  # 1: the blocked factorisation takes this island (tile path)
+    halted: wp.array(dtype=wp.int32)  # 1: a sub-step of this island needs minimise (its later ones are not run)
     ridge: wp.array(dtype=wp.float64)  # its ridge there
     biggest: wp.array(dtype=wp.float64)  # the largest diagonal entry of its matrix
     iterating: wp.array(dtype=wp.int32)  # [0]: some island is not DONE
@@ -316,12 +324,16 @@ def scene_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Is
 
 @wp.kernel
 def pairs_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
-    """Candidate pair p (its side i on an object of the island; side j another object of it, or frozen): pair
-    contact with its frozen friction, the four blocks of the matrix where j moves."""
-    p = wp.tid()
-    isl = isl_info.object_island[st.obj_i[p]]
+    """A candidate pair p the island evaluates (its side i on an object of the island; side j another object of
+    it, or frozen; in sub-steps those that can touch within the sub-step, ``st.live_order``): pair contact with its
+    frozen friction, the four blocks of the matrix where j moves."""
+    k = wp.tid()  # slot k of the pairs ordered by island: island isl's evaluated pairs are the first
+    isl = isl_info.object_island[st.obj_i[st.pair_order[k]]]  # live_count[isl] of its slots (all of them outside sub-steps)
     mode = isl_info.mode[isl]
-    if mode == NOTHING or _pair_out_of_reach(bd, st, p):
+    if mode == NOTHING or k >= st.pair_start[isl] + st.live_count[isl]:
+        return
+    p = st.live_order[k]
+    if _pair_out_of_reach(bd, st, p):
         return
     active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, wk.tm, p)
     if active == 0:
@@ -545,6 +557,62 @@ def iterating_kernel(isl_info: Island):
         isl_info.iterating[0] = 1
 
 
+@wp.kernel
+def clear_iterating_kernel(isl_info: Island):
+    isl_info.iterating[0] = 0
+
+
+@wp.kernel
+def substep_start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps, isl_info: Island,
+                         threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64), j: int):  # fmt: skip
+    """Island ``isl``'s sub-step ``j`` (if it has one and none of its earlier ones was handed back): its start data
+    from the current states (:func:`data_gen.sim.fused_newton._substep_start`: scene margins, the pairs that can
+    touch within it), its limits, q at the predicted states, cleared counters, phase EVALUATE; else DONE."""
+    isl = wp.tid()
+    isl_info.mode[isl] = NOTHING
+    if j >= ss.num_sub[isl] or isl_info.halted[isl] != 0:
+        isl_info.phase[isl] = DONE
+        return
+    _substep_start(bd, sc, st, ss, isl)
+    thr, trust = _step_limits(bd, st, isl, ss.tolerance, ss.gravity_norm)
+    threshold[isl] = thr
+    trust_m[isl] = trust
+    kp = bd.flat_index.shape[1] // 3
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):  # q0 = the predicted states
+        o = bd.island_objects[slot]
+        for r in range(3):
+            for a in range(bd.columns[o]):
+                wk.q[bd.flat_index[o, r * kp + a]] = st.tm_pred[o, r, a]
+    for k in range(NUM_STATS):
+        wk.stats[isl, k] = 0
+    isl_info.phase[isl] = EVALUATE
+
+
+@wp.kernel
+def substep_end_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps, isl_info: Island, j: int):
+    """After island ``isl``'s sub-step ``j``: its counters into row j; a hand-back halts the island; else its
+    contact forces (and their sums) into row j and the states and rates advanced, as
+    :func:`data_gen.sim.fused_newton.substeps_kernel` does."""
+    isl = wp.tid()
+    if j >= ss.num_sub[isl] or isl_info.halted[isl] != 0:
+        return
+    for k in range(NUM_STATS):
+        ss.stats[j, isl, k] = wk.stats[isl, k]
+    if wk.stats[isl, STATUS] != SOLVED:
+        isl_info.halted[isl] = 1
+        return
+    _final_forces(bd, sc, st, wk, isl, ss.forces, j)  # (loads q into wk.tm)
+    if ss.with_sums != 0:
+        _force_sums(bd, st, ss, isl, j)
+    h = ss.h[isl]
+    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
+        o = bd.island_objects[slot]
+        for r in range(3):
+            for a in range(bd.columns[o]):
+                ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / h
+                ss.tm_now[o, r, a] = wk.tm[o, r, a]
+
+
 _WORK_INPUTS = frozenset({"q"})
 """What a solve reads of :class:`Work` before writing it: the start state (the matrices, factors, updates, envelope
 and counters are written first)."""
@@ -567,6 +635,10 @@ class StructMirror:
         by_address: dict[int, wp.array] = {}
         for name in struct_type.vars:
             value = getattr(source, name)
+            var_type = struct_type.vars[name].type
+            if isinstance(var_type, type(struct_type)):  # a struct inside: copied the same way
+                setattr(out, name, self.copy(f"{tag}.{name}", value, var_type, refresh))
+                continue
             if not isinstance(value, wp.array):
                 setattr(out, name, value)
                 continue
@@ -727,16 +799,10 @@ class DeviceNewton:
         grad = torch.as_tensor(wk.grad.numpy()).view(n_isl, size).clone()
         return value, grad, torch.as_tensor(wk.hess.numpy()).view(n_isl, size, size).clone()
 
-    def solve(self, objective, q0: torch.Tensor, scale: torch.Tensor | None, trust_m: torch.Tensor | None,
-              settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
-        """What :meth:`FusedNewton.solve` returns for the same arguments (to round-off), or None where an island
-        needs ``minimise``."""
-        f = self.fused
-        n_isl = f.shape[0]
-        f.q.copy_(q0.reshape(-1))
-        given = f._given_limits(scale, trust_m, settings)
-        bd, sc, st, wk, threshold, trust = self._structs(f._step_data(objective))
-        info = self._island_info()
+    def _iteration(self, bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, info: Island, threshold: wp.array,
+                   trust: wp.array, settings: NewtonSettings):  # fmt: skip
+        """The body of the Newton loop: one iteration of every island not DONE, its line search a nested loop."""
+        n_isl = self.fused.shape[0]
         device = self.device
 
         def search() -> None:  # one line-search trial of every searching island
@@ -744,39 +810,97 @@ class DeviceNewton:
             wp.launch(decide_kernel, dim=n_isl, device=device,
                       inputs=[bd, wk, info, threshold, int(settings.line_search_steps)])  # fmt: skip
 
-        def iteration() -> None:  # one Newton iteration of every island not DONE
+        def iteration() -> None:
             wp.launch(prepare_kernel, dim=n_isl, device=device, inputs=[bd, wk, info, int(settings.iterations)])
             self._launch_terms(bd, sc, st, wk, info)
             if self.tile_factor:
                 self._factor_blocked(bd, wk, info)
             else:
-                wp.launch(row_envelope_kernel, dim=(n_isl, f.shape[1]), device=device, inputs=[bd, wk, info])
+                wp.launch(row_envelope_kernel, dim=(n_isl, self.fused.shape[1]), device=device, inputs=[bd, wk, info])
             wp.launch(direction_kernel, dim=n_isl, device=device,
                       inputs=[bd, wk, info, threshold, trust, int(self.tile_factor)])  # fmt: skip
             wp.capture_while(info.searching, search)
             wp.launch(iterating_kernel, dim=n_isl, device=device, inputs=[info])
 
-        def schedule() -> None:
-            self._start(bd, sc, st, wk, info, threshold, trust, given, settings.tolerance)
-            wp.capture_while(info.iterating, iteration)
+        return iteration
 
+    def _run(self, schedule) -> None:
+        """``schedule()``'s launches, captured as one graph and launched (``graph``), else launched directly."""
         if self.graph:
             try:
-                with wp.ScopedCapture(device=device) as capture:
+                with wp.ScopedCapture(device=self.device) as capture:
                     schedule()
             except Exception as err:  # (e.g. a driver without conditional graph nodes) launched directly instead
-                logger.warning("DeviceNewton: the solve's CUDA graph could not be captured on %s (%s): launching "
-                               "directly from now on (the loops' conditions are then read on the host)", device, err)
+                logger.warning("DeviceNewton: the solve's graph could not be captured on %s (%s): launching "
+                               "directly from now on (the loops' conditions are then read on the host)",
+                               self.device, err)  # fmt: skip
                 self.graph = False
                 schedule()
             else:
                 wp.capture_launch(capture.graph)
         else:
             schedule()
+
+    def solve(self, objective, q0: torch.Tensor, scale: torch.Tensor | None, trust_m: torch.Tensor | None,
+              settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
+        """What :meth:`FusedNewton.solve` returns for the same arguments (to round-off), or None where an island
+        needs ``minimise``."""
+        f = self.fused
+        f.q.copy_(q0.reshape(-1))
+        given = f._given_limits(scale, trust_m, settings)
+        bd, sc, st, wk, threshold, trust = self._structs(f._step_data(objective))
+        info = self._island_info()
+        iteration = self._iteration(bd, sc, st, wk, info, threshold, trust, settings)
+
+        def schedule() -> None:
+            self._start(bd, sc, st, wk, info, threshold, trust, given, settings.tolerance)
+            wp.capture_while(info.iterating, iteration)
+
+        self._run(schedule)
         self._bring_back(st, wk, threshold, trust)
         if bool((f.stats[:, STATUS] != SOLVED).any()):
             return None
         return f._result()
+
+    def solve_substeps(self, tm: torch.Tensor, tmdot: torch.Tensor, h_s: float | Sequence[float],
+                       num_sub: int | Sequence[int], gravity_m_s2: torch.Tensor, settings: NewtonSettings,
+                       scene_stiffness_n_m: torch.Tensor, smoothing_m: float | Sequence[float], pairs,
+                       pair_mu: torch.Tensor, pair_margin_m: float,
+                       pair_group: np.ndarray | None = None) -> SubstepResult | None:  # fmt: skip
+        """What :meth:`FusedNewton.solve_substeps` returns for the same arguments (to round-off): every island's
+        sub-steps, each one's start data computed on the device from the previous one's result
+        (:func:`substep_start_kernel`), solved by the schedule, its forces and sums recorded
+        (:func:`substep_end_kernel`): a step of one-handle islands without the host between its sub-steps."""
+        f = self.fused
+        n_isl = f.shape[0]
+        st_host, ss_host, count_max, count, num_pairs, groups = f.prepare_substeps(
+            tm, tmdot, h_s, num_sub, gravity_m_s2, settings, scene_stiffness_n_m, smoothing_m, pairs, pair_mu,
+            pair_margin_m, pair_group,
+        )  # fmt: skip
+        bd, sc, st, wk, threshold, trust = self._structs(st_host)
+        ss = self.mirror.copy("substeps", ss_host, Substeps) if self.mirror is not None else ss_host
+        info = self._island_info()
+        info.halted.zero_()
+        iteration = self._iteration(bd, sc, st, wk, info, threshold, trust, settings)
+        device = self.device
+
+        def schedule() -> None:
+            for j in range(count_max):
+                wp.launch(clear_iterating_kernel, dim=1, device=device, inputs=[info])
+                wp.launch(substep_start_kernel, dim=n_isl, device=device,
+                          inputs=[bd, sc, st, wk, ss, info, threshold, trust, j])  # fmt: skip
+                wp.launch(iterating_kernel, dim=n_isl, device=device, inputs=[info])
+                wp.capture_while(info.iterating, iteration)
+                wp.launch(substep_end_kernel, dim=n_isl, device=device, inputs=[bd, sc, st, wk, ss, info, j])
+
+        self._run(schedule)
+        if self.mirror is not None:  # what substep_result reads
+            for name in ("tm_now", "tmdot", "stats", "scene_sums", "pair_sums"):
+                wp.copy(getattr(ss_host, name), getattr(ss, name))
+            for name in ("sphere_x", "scene_force", "scene_normal", "pair_force", "pair_normal"):
+                wp.copy(getattr(ss_host.forces, name), getattr(ss.forces, name))
+            wp.synchronize_device(device)
+        return f.substep_result(count_max, count, num_pairs, groups, pair_group is not None)
 
 
 def _view(array: wp.array, shape: tuple[int, ...]) -> wp.array:

@@ -319,9 +319,9 @@ class ImplicitEulerSolver:
         device_newton: with ``fused_newton``, solve the groups of one-handle objects, and those of deformable ones,
             with :class:`~data_gen.sim.device_newton.DeviceNewton` (Newton's method as launches with a thread per
             element: the GPU's shape; for deformable objects the full Newton matrix every iteration, no kept elastic
-            blocks), one sub-step at a time (the fused sub-step launch is not used), on ``device`` (a GPU: the
-            workspace's model and step data are copied there, the state comes back once per solve). Mixed groups
-            take ``minimise``.
+            blocks; one-handle islands all their sub-steps in one schedule, as the fused sub-step launch), on
+            ``device`` (a GPU: the workspace's model and step data are copied there, the states come back once per
+            solve or step).
     """
 
     def __init__(
@@ -454,10 +454,8 @@ class ImplicitEulerSolver:
         # the islands of one-handle objects, whatever their sub-steps, in one fused launch; each sub-step
         # class's records are taken at its place in the sorted order (the events come out in the same order)
         t0 = time.perf_counter()
-        records = self._solve_rigid_substeps(
-            [] if self.device_newton else [(key[0], by_substeps[key]) for key in keys if key[1]],
-            contacts.pairs, positions, stats, supported,
-        )  # (with device_newton the one-handle groups are solved one sub-step at a time below)
+        records = self._solve_rigid_substeps([(key[0], by_substeps[key]) for key in keys if key[1]],
+                                             contacts.pairs, positions, stats, supported)  # fmt: skip
         self.timings["newton"] += time.perf_counter() - t0
         for num_sub, rigid in keys:
             group = by_substeps[(num_sub, rigid)]
@@ -879,11 +877,7 @@ class ImplicitEulerSolver:
         on_device = objective.workspace.any_fused if self.device_newton else None
         result, kind = None, None
         if on_device is not None:
-            device = getattr(on_device, "device_newton", None)
-            if device is None:  # (kept with its workspace); on the broad phase's device (a GPU: copies go there)
-                here = wp.get_device(self.device) == wp.get_device(on_device.device)
-                device = on_device.device_newton = DeviceNewton(on_device, device=None if here else self.device)
-            result, kind = device.solve(objective, q0, None, None, settings), "device"
+            result, kind = self._device_newton_of(on_device).solve(objective, q0, None, None, settings), "device"
             fused, split = (on_device, None) if fused is not None else (None, on_device)
         elif fused is not None:
             result, kind = fused.solve(objective, q0, None, None, settings), "fused"
@@ -918,6 +912,15 @@ class ImplicitEulerSolver:
         forces = kernel.forces() if from_kernel else objective.forces(tm)
         self._record_group_forces(objects, forces, ps, objective.pairs, model.sphere_valid, h, stats, supported)
         return int(result.iterations.sum())
+
+    def _device_newton_of(self, workspace: FusedNewton) -> DeviceNewton:
+        """The :class:`DeviceNewton` of a fused workspace (kept with it), on the broad phase's device: a GPU next
+        to the CPU workspace gets copies."""
+        device = getattr(workspace, "device_newton", None)
+        if device is None:
+            here = wp.get_device(self.device) == wp.get_device(workspace.device)
+            device = workspace.device_newton = DeviceNewton(workspace, device=None if here else self.device)
+        return device
 
     def _solve_rigid_substeps(self, parts: list[tuple[int, list[list[int]]]], pairs_all: np.ndarray,
                               positions: list[torch.Tensor], stats: StepStats,
@@ -1004,20 +1007,25 @@ class ImplicitEulerSolver:
         h_of = {k: self.dt / num_sub for num_sub, group in parts for island in group for k in island}
         h_object = torch.tensor([h_of[k] for k in objects], dtype=DTYPE)  # each object's sub-step, s
         scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h_object * h_object)
-        result = fused.solve_substeps(
+        kind = "device" if self.device_newton else "fused"
+        result = self._device_newton_of(fused).solve_substeps(
+            tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
+            scene_k, [self.preset.friction_smoothing_m_s * h for h in h_island], pairs, ps.mu,
+            self.broad_phase.margin_m, np.concatenate(pair_group),
+        ) if self.device_newton else fused.solve_substeps(
             tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
             scene_k, [self.preset.friction_smoothing_m_s * h for h in h_island], pairs, ps.mu,
             self.broad_phase.margin_m, np.concatenate(pair_group),
         )  # fmt: skip
         if result is None:
-            self.counters["fused_handed_back"] += 1
+            self.counters[f"{kind}_handed_back"] += 1
             return None
         for key, value in result.counters.items():
             self.counters[key] += value
         for num_sub, group in parts:
             self.counters["island_solves"] += num_sub * len(group)
             self.counters["island_object_solves"] += num_sub * sum(len(island) for island in group)
-            self.counters["fused_island_solves"] += num_sub * len(group)
+            self.counters[f"{kind}_island_solves"] += num_sub * len(group)
         stats.newton_iterations += int(result.iterations.sum())
         q = result.tm.reshape(-1)[setup.padded]
         qdot = result.tmdot.reshape(-1)[setup.padded]
