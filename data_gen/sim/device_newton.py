@@ -198,26 +198,29 @@ def load_kernel(bd: Bodies, wk: Work, isl_info: Island, mode: int):
 
 
 @wp.kernel
-def clear_kernel(bd: Bodies, wk: Work, isl_info: Island):
-    """Entry (isl, i, j) of the islands to evaluate: the matrix and gradient cleared for derivatives (identity
-    rows on padding), the sum of the objective cleared. Clears the line search's flag (the launches after the
-    terms set it: :func:`direction_kernel`, :func:`decide_kernel`)."""
-    isl, i, j = wp.tid()
-    if isl == 0 and i == 0 and j == 0:
+def clear_kernel(bd: Bodies, wk: Work, isl_info: Island, chunk: int):
+    """Entries (isl, i, c chunk .. (c + 1) chunk) of the islands to evaluate: the matrix and gradient cleared for
+    derivatives (identity rows on padding), the sum of the objective cleared (a GPU takes an entry per thread, a
+    CPU a row). Clears the line search's flag (the launches after the terms set it: :func:`direction_kernel`,
+    :func:`decide_kernel`)."""
+    isl, i, c = wp.tid()
+    if isl == 0 and i == 0 and c == 0:
         isl_info.searching[0] = 0
     mode = isl_info.mode[isl]
     if mode == NOTHING:
         return
     n_size = bd.island_size
-    if i == 0 and j == 0:
+    if i == 0 and c == 0:
         isl_info.total[isl] = _ZERO
     if mode == DERIVATIVES:
-        if j == 0:
+        if c == 0:
             wk.grad[isl * n_size + i] = _ZERO
-        v = _ZERO
-        if i == j and i >= bd.island_dofs[isl]:
-            v = _ONE
-        wk.hess[(isl * n_size + i) * n_size + j] = v
+        row = (isl * n_size + i) * n_size
+        for j in range(c * chunk, wp.min((c + 1) * chunk, n_size)):
+            v = _ZERO
+            if i == j and i >= bd.island_dofs[isl]:
+                v = _ONE
+            wk.hess[row + j] = v
 
 
 @wp.kernel
@@ -680,6 +683,7 @@ class DeviceNewton:
         self.device = self.mirror.device if self.mirror is not None else wp.get_device(fused.device)
         self.graph = self.device.is_cuda if graph is None else bool(graph)
         self.tile_factor = self.device.is_cuda if tile_factor is None else bool(tile_factor)
+        self.clear_entries = self.device.is_cuda  # the matrices cleared an entry per thread (GPU), else a row
         if self.graph:  # a module cannot be loaded while a graph is captured: load both here
             for module in (sys.modules[__name__], sys.modules[blocked_cholesky_solve.__module__]):
                 wp.load_module(module, device=self.device)
@@ -745,7 +749,8 @@ class DeviceNewton:
         n, num_points = f._keep["cub_volume"].shape
         num_spheres = f._keep["radius"].shape[1]
         device = self.device
-        wp.launch(clear_kernel, dim=(n_isl, size, size), device=device, inputs=[bd, wk, info])
+        chunk = 1 if self.clear_entries else size
+        wp.launch(clear_kernel, dim=(n_isl, size, size // chunk), device=device, inputs=[bd, wk, info, chunk])
         wp.launch(inertia_kernel, dim=n, device=device, inputs=[bd, st, wk, info])
         wp.launch(elastic_kernel, dim=(n, num_points), device=device, inputs=[bd, st, wk, info])
         wp.launch(scene_kernel, dim=(n, num_spheres), device=device, inputs=[bd, sc, st, wk, info])

@@ -188,6 +188,7 @@ def test_the_captured_schedule_gives_the_direct_launches_bits(tile_factor):
     q, counters = direct.q.clone(), dict(direct.counters)
     for device in (None, "cpu"):
         captured = DeviceNewton(fused, device=device, graph=True, tile_factor=tile_factor)
+        captured.clear_entries = tile_factor  # (the GPU's clearing, an entry per thread, with the GPU's factorisation)
         out = captured.solve(objective, q0, None, None, settings)
         assert captured.graph  # (a failed capture logs and turns it off)
         assert torch.equal(out.q, q) and out.counters == counters
