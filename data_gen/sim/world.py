@@ -124,7 +124,7 @@ class Simulator:
         device_newton: solve islands with :class:`~data_gen.sim.device_newton.DeviceNewton` (Newton's method as
             launches with a thread per element, the GPU's shape) on ``device``, instead of the fused kernel's
             sub-step launch (one-handle islands: the same results to round-off) and the split solve (deformable
-            islands: the full Newton matrix every iteration); 4-6x slower on the CPU.
+            islands: the full Newton matrix every iteration); 3-5x slower on the CPU.
     """
 
     def __init__(

@@ -133,7 +133,7 @@ def test_schedule_hands_back_a_non_finite_state(tile_factor):
 def _stack(throw: bool, device_newton: bool, frames: int = 20, handles: int = 1, young_pa: float = 1e9,
            fused_newton: bool = True):  # fmt: skip
     """The fused tests' three stiff boxes dropped into a stack (``throw``: the top one thrown down, spinning),
-    draft quality, solved by the fused kernel's sub-step launch or by the device schedule, sub-step by sub-step;
+    draft quality, solved by the fused kernel's sub-step launch or by the device schedule (its own sub-step schedule);
     ``handles`` and ``young_pa`` make them deformable."""
     from data_gen.sim.material import Material
     from data_gen.sim.static_scene import StaticScene
