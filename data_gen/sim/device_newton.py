@@ -8,20 +8,25 @@ slower than a core. :class:`DeviceNewton` runs the same algorithm (issue 13, ite
   per object (inertia, gravity and the motion bound the scene test reads), per cubature point (neo-Hookean),
   per contact sphere (scene contact and friction) and per candidate pair (pair contact and friction), each
   adding its part to its island's value, gradient and dense matrix with atomic adds (:func:`wp.atomic_add`);
-* one thread per island factorises (dense Cholesky, the fused kernel's ridge and hand-back rules), takes the
-  trust limit, the converged shortcut and the Armijo decisions, and sets what the next launches evaluate;
+* each island's matrix is factorised inside its envelope by a block of threads (:mod:`data_gen.sim.tile_cholesky`,
+  the GPU's default) or by one thread (the CPU's), with the fused kernel's ridge and hand-back rules; a thread per
+  island takes the trust limit, the converged shortcut and the Armijo decisions, and sets what the next launches
+  evaluate;
 * the loops (Newton iterations, line-search trials) run under :func:`wp.capture_while` on flags the island
-  threads set: on the CPU that reads the flag from host memory; on CUDA inside a graph capture it is a
+  threads set: directly, the flag is read on the host; captured as a graph (the default on CUDA), each loop is a
   conditional node, so a solve needs no host read at all (not yet run on a GPU: see docs/gpu_checks.md).
 
-The decisions are the fused kernel's (:func:`data_gen.sim.fused_newton._take_update`, ``_newton``) on the same
-values; the values are its terms summed in another order (round-off), so a solve takes the same iterations and
-ends at the same state to round-off: ``tests/sim/test_sim_device_newton.py`` checks that on recorded steps. It
-uses a :class:`FusedNewton`'s model, scene, step data and buffers, and solves what :meth:`FusedNewton.solve` does
-(whole steps; sub-steps and the split solve of soft islands stay with the fused kernel).
+:meth:`DeviceNewton.solve` solves what :meth:`FusedNewton.solve` does (any objects the kernels fit: for deformable
+ones the full Newton matrix every iteration), :meth:`DeviceNewton.solve_substeps` what
+:meth:`FusedNewton.solve_substeps` does (a step's sub-steps of one-handle islands, their start data and forces on
+the device). The decisions are the fused kernel's (:func:`data_gen.sim.fused_newton._take_update`, ``_newton``) on
+the same values; the values are its terms summed in another order (round-off), so a solve takes the same
+iterations and ends at the same state to round-off: ``tests/sim/test_sim_device_newton.py`` checks that on
+recorded steps and whole simulations. It uses a :class:`FusedNewton`'s model, scene, step data and buffers, or
+copies of them on another device (:class:`StructMirror`).
 
-On the CPU the threads of a launch run one after another, so the sums are deterministic; this path costs more
-there than the fused kernel (every term is a launch, every trial another round of them), which stays the CPU's.
+On the CPU the threads of a launch run one after another, so the sums are deterministic; this path costs 3-5x the
+fused kernel there (every term is a launch, every trial another round of them), which stays the CPU's default.
 On CUDA the atomic adds make the sums' order, and so the last bits, vary between runs.
 """
 
