@@ -302,6 +302,9 @@ MUTANTS: tuple[Mutant, ...] = (
            equivalent="a step whose sub-step is handed back returns None (its row's status) whatever the island's "
                       "later sub-steps do, and the caller solves the step again one sub-step at a time: halting "
                       "only saves their work"),
+    Mutant("device_copies_keep_the_first_grouping", "data_gen/sim/device_newton.py",
+           "        key = f.layout_version  # (the grouping's arrays in Bodies change with it)",
+           "        key = 0  # (the grouping's arrays in Bodies change with it)"),
     Mutant("tile_cholesky_lower_blocks_skip_earlier_columns", "data_gen/sim/tile_cholesky.py",
            "                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(-1.0), beta=wp.float64(1.0))",
            "                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(0.0), beta=wp.float64(1.0))"),

@@ -703,7 +703,7 @@ class DeviceNewton:
         solver's device."""
         f = self.fused
         n_isl = f.shape[0]
-        key = (n_isl, id(f.island_of))
+        key = f.layout_version
         if self._info is not None and self._info_key == key:
             return self._info
         info = Island()
@@ -723,7 +723,7 @@ class DeviceNewton:
         if self.mirror is None:
             return f.bodies, f.scene, st, f.work, threshold, trust
         m = self.mirror
-        key = (f.shape, id(f.island_of))
+        key = f.layout_version  # (the grouping's arrays in Bodies change with it)
         if self._bodies_key != key:
             self._bodies = m.copy("bodies", f.bodies, Bodies)
             self._bodies_key = key

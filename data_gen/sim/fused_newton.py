@@ -1578,6 +1578,7 @@ class FusedNewton:
         grouping costs a fraction of a new workspace)."""
         n_isl, size = layout.num_islands, layout.island_size
         self.shape = (n_isl, size)
+        self.layout_version = getattr(self, "layout_version", -1) + 1  # (what copies of the layout are keyed by)
         i32 = torch.int32
         counts = torch.bincount(layout.island, minlength=n_isl)
         object_start = torch.zeros(n_isl + 1, dtype=torch.int64)

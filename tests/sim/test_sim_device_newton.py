@@ -170,6 +170,11 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
                         init(self, fused, device, True, True))  # fmt: skip
     tiled = _stack(throw, True)
     assert np.abs(np.stack([t.com_m for t in tiled.objects]) - com_f).max() < 1e-9
+    # on copies of each workspace, as next to a GPU (the model copied again at each regrouping): the same bits
+    monkeypatch.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None:
+                        init(self, fused, "cpu", False, False))  # fmt: skip
+    copied = _stack(throw, True)
+    assert np.array_equal(np.stack([t.com_m for t in copied.objects]), com_d)
     np.testing.assert_allclose(np.diff(np.sort(com_d[:, -1, 2])), 0.1, atol=0.01)
     counters = device.info.counters
     assert counters["device_island_solves"] == counters["island_solves"] > 0
@@ -358,3 +363,43 @@ def test_device_substeps_equal_the_fused_substep_launch_on_a_simulations_steps(t
     monkeypatch.setattr(FusedNewton, "solve_substeps", both)
     _stack(True, False, frames=10)
     assert len(compared) >= 10 and max(compared) >= 2  # steps of several sub-steps among them
+
+
+def test_copies_follow_the_workspace_through_its_regroupings(monkeypatch):
+    """Three stiff boxes apart (three islands), one dropped onto another (two islands): the kept workspace is
+    regrouped as they meet, and the copies of its grouping's arrays (the islands' objects, their unknowns) must
+    be made again each time, or the copied solve would run on the old islands. The same bits as the in-place
+    schedule, and the islands did change."""
+    from data_gen.sim.material import Material
+    from data_gen.sim.static_scene import StaticScene
+    from data_gen.sim.world import SimObjectSpec, Simulator
+    from tests.sim.test_sim_column import grid_box
+
+    half = (0.07, 0.07, 0.05)
+    regroupings = []
+    relayout = FusedNewton.relayout
+
+    def counted(self, layout, *args):
+        regroupings.append(layout.num_islands)
+        return relayout(self, layout, *args)
+
+    def run(copies: bool):
+        init = DeviceNewton.__init__
+        with monkeypatch.context() as m:
+            m.setattr(FusedNewton, "relayout", counted)
+            if copies:
+                m.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None:
+                          init(self, fused, "cpu", graph, tile_factor))  # fmt: skip
+            specs = [
+                SimObjectSpec(f"box_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e9, 0.3, 1000.0),
+                              position_m=pos, num_handles=1, velocity_m_s=vel)
+                for k, (pos, vel) in enumerate((((0.0, 0.0, 0.05), (0.0, 0.0, 0.0)), ((0.6, 0.0, 0.05), (0.0, 0.0, 0.0)),
+                                                ((0.01, 0.0, 0.25), (0.0, 0.0, -1.0))))
+            ]  # fmt: skip
+            sim = Simulator(StaticScene(), specs, (0.0, 0.0, -9.81), "draft", seed=0, device_newton=True)
+            return np.stack([t.com_m for t in sim.run(12, fps=25.0).objects])
+
+    in_place, copied = run(False), run(True)
+    assert np.array_equal(copied, in_place)
+    assert len(set(regroupings)) >= 2  # the workspace was regrouped into other island counts
+    assert 0.09 < in_place[2, -1, 2] - in_place[0, -1, 2] < 0.11  # the dropped box rests on the first
