@@ -780,14 +780,12 @@ class DeviceNewton:
         n_isl, size = self.fused.shape
         matrices = (_view(wk.hess, (n_isl, size, size)), _view(wk.grad, (n_isl, size, 1)))
         outputs = (_view(wk.chol, (n_isl, size, size)), _view(wk.dq, (n_isl, size, 1)))
-        key = (n_isl, blocks(size))
-        if self._first_block is None or self._first_block.shape != key:
-            self._first_block = wp.zeros(key, dtype=wp.int32, device=self.device)
+        first_block = self._first_blocks()  # (allocated before a capture by _run)
         wp.launch(factor_start_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info])
-        block_envelope(matrices[0], info.factor, self._first_block)
-        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs, first_block=self._first_block)
+        block_envelope(matrices[0], info.factor, first_block)
+        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs, first_block=first_block)
         wp.launch(ridge_kernel, dim=n_isl, device=self.device, inputs=[bd, wk, info])
-        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs, first_block=self._first_block)
+        blocked_cholesky_solve(*matrices, info.ridge, info.factor, *outputs, first_block=first_block)
 
     def evaluate(self, objective, q: torch.Tensor,
                  derivatives: bool) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:  # fmt: skip
@@ -834,8 +832,18 @@ class DeviceNewton:
 
         return iteration
 
+    def _first_blocks(self) -> wp.array:
+        """The blocked factorisation's envelope (n_isl, blocks), allocated for the workspace's shape now."""
+        n_isl, size = self.fused.shape
+        key = (n_isl, blocks(size))
+        if self._first_block is None or self._first_block.shape != key:
+            self._first_block = wp.zeros(key, dtype=wp.int32, device=self.device)
+        return self._first_block
+
     def _run(self, schedule) -> None:
-        """``schedule()``'s launches, captured as one graph and launched (``graph``), else launched directly."""
+        """``schedule()``'s launches, captured as one graph and launched (``graph``), else launched directly. (What
+        they need is allocated before: nothing is allocated during a capture.)"""
+        self._first_blocks()
         if self.graph:
             try:
                 with wp.ScopedCapture(device=self.device) as capture:
