@@ -71,7 +71,7 @@ from data_gen.sim.fused_newton import (
     _pair_at,
     _pair_out_of_reach,
     _scene_sphere,
-    _scene_distance,
+    sphere_margin,
     _step_limits,
     _update_norms,
     scene_args,
@@ -145,7 +145,7 @@ def _add_block(hess: wp.array(dtype=wp.float64), n_size: int, matrix_base: int, 
 
 
 @wp.kernel
-def start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Island,
+def start_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island,
                  threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64), limits_given: int,
                  tolerance: wp.float64, gravity_norm: wp.float64):  # fmt: skip
     """Island ``isl``: unless ``limits_given``, its limits (:func:`data_gen.sim.fused_newton._step_limits`), cleared
@@ -165,15 +165,11 @@ def start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Is
 
 @wp.kernel
 def margins_kernel(bd: Bodies, sc: SceneArgs, st: StepData):
-    """Sphere s of object o: how far its start position is from touching the scene (m), or -1 where it carries a
-    frozen friction force (always evaluated), as :func:`data_gen.sim.fused_newton._scene_margins` computes it per
-    island: :func:`scene_kernel` skips a sphere whose margin exceeds its motion bound."""
+    """Sphere s of object o: its :func:`data_gen.sim.fused_newton.sphere_margin` (what the fused kernel's
+    ``_scene_margins`` computes per island): :func:`scene_kernel` skips a sphere whose margin exceeds its motion
+    bound."""
     o, s = wp.tid()
-    m = wp.float64(-1.0)
-    if st.stiffness[o, s] != _ZERO and st.friction_scale[o, s] <= _ZERO:
-        sdf, n = _scene_distance(sc, st.start_x[o, s])
-        m = sdf - bd.radius[o, s]
-    st.margin[o, s] = m
+    st.margin[o, s] = sphere_margin(bd, sc, st, o, s)
 
 
 @wp.kernel
@@ -633,7 +629,7 @@ class StructMirror:
 
     def __init__(self, device) -> None:
         self.device = wp.get_device(device)
-        self._buffers: dict[tuple[str, str], wp.array] = {}
+        self._buffers: dict[str, wp.array] = {}
 
     def copy(self, tag: str, source, struct_type, refresh: bool | frozenset[str] = True):
         """A ``struct_type`` instance whose arrays are this device's copies of ``source``'s (filled from them with
@@ -655,16 +651,21 @@ class StructMirror:
                 setattr(out, name, wp.array(ptr=shared.ptr, dtype=value.dtype, shape=value.shape,
                                             strides=value.strides, device=self.device))  # fmt: skip
                 continue
-            key = (tag, name)
-            buffer = self._buffers.get(key)
-            if buffer is None or buffer.shape != value.shape or buffer.dtype != value.dtype:
-                buffer = self._buffers[key] = wp.empty(value.shape, dtype=value.dtype, device=self.device)
-            if value.size and (refresh is True or (not isinstance(refresh, bool) and name in refresh)):
-                wp.copy(buffer, value)
+            buffer = self.array(f"{tag}.{name}", value, refresh if isinstance(refresh, bool) else name in refresh)
             if value.ptr:
                 by_address[value.ptr] = buffer
             setattr(out, name, buffer)
         return out
+
+    def array(self, tag: str, value: wp.array, refresh: bool = True) -> wp.array:
+        """This device's copy of the array ``value`` (named ``tag``), allocated at first use or when its shape or
+        type changes, filled from it with ``refresh``."""
+        buffer = self._buffers.get(tag)
+        if buffer is None or buffer.shape != value.shape or buffer.dtype != value.dtype:
+            buffer = self._buffers[tag] = wp.empty(value.shape, dtype=value.dtype, device=self.device)
+        if refresh and value.size:
+            wp.copy(buffer, value)
+        return buffer
 
 
 class DeviceNewton:
@@ -710,7 +711,8 @@ class DeviceNewton:
         for name in Island.vars:
             dtype = wp.float64 if name in ("value", "total", "alpha", "slope", "mass", "ridge", "biggest") else wp.int32
             count = 1 if name in ("iterating", "searching") else n_isl
-            setattr(info, name, wp.zeros(count, dtype=dtype, device=self.device))
+            if name != "object_island":
+                setattr(info, name, wp.zeros(count, dtype=dtype, device=self.device))
         info.object_island = wp.array(f.island_of.to(torch.int32).cpu().numpy(), dtype=wp.int32, device=self.device)
         self._info, self._info_key = info, key
         return info
@@ -731,9 +733,7 @@ class DeviceNewton:
             self._scene = scene_args(f.contact.scene, self.device.alias)
         step = m.copy("step", st, StepData)
         work = m.copy("work", f.work, Work, refresh=_WORK_INPUTS)
-        limits = [m.copy(name, _limits_of(array), _Limits).values for name, array in (("threshold", threshold),
-                                                                                       ("trust", trust))]  # fmt: skip
-        return self._bodies, self._scene, step, work, limits[0], limits[1]
+        return self._bodies, self._scene, step, work, m.array("threshold", threshold), m.array("trust", trust)
 
     def _bring_back(self, step: StepData, work: Work, threshold: wp.array, trust: wp.array) -> None:
         """What the solve wrote that the workspace's callers read, copied back to it: the state, the counters,
@@ -768,7 +768,7 @@ class DeviceNewton:
         f = self.fused
         n, num_spheres = f._keep["radius"].shape
         wp.launch(start_kernel, dim=f.shape[0], device=self.device, inputs=[
-            bd, sc, st, wk, info, threshold, trust, int(limits_given), wp.float64(tolerance),
+            bd, st, wk, info, threshold, trust, int(limits_given), wp.float64(tolerance),
             wp.float64(f._gravity_norm),
         ])  # fmt: skip
         wp.launch(margins_kernel, dim=(n, num_spheres), device=self.device, inputs=[bd, sc, st])
@@ -924,19 +924,6 @@ class DeviceNewton:
 def _view(array: wp.array, shape: tuple[int, ...]) -> wp.array:
     """A contiguous float64 array's memory seen with another shape (no copy)."""
     return wp.array(ptr=array.ptr, dtype=wp.float64, shape=shape, device=array.device)
-
-
-@wp.struct
-class _Limits:
-    """One per-island array, for :class:`StructMirror` (the limits are plain arrays, not structs)."""
-
-    values: wp.array(dtype=wp.float64)
-
-
-def _limits_of(array: wp.array) -> _Limits:
-    out = _Limits()
-    out.values = array
-    return out
 
 
 __all__ = ["DeviceNewton", "StructMirror"]

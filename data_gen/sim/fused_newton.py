@@ -205,19 +205,24 @@ def _scene_distance(sc: SceneArgs, x: wp.vec3d):
 
 
 @wp.func
+def sphere_margin(bd: Bodies, sc: SceneArgs, st: StepData, o: int, s: int):
+    """How far sphere (o, s)'s start position is from touching the scene (m), or -1 when it carries a frozen
+    friction force (always evaluated). The scene distance is 1-Lipschitz, so a sphere whose margin exceeds its
+    largest possible motion cannot touch the scene: it contributes nothing and :func:`_evaluate` skips it."""
+    m = wp.float64(-1.0)
+    if st.stiffness[o, s] != _ZERO and st.friction_scale[o, s] <= _ZERO:
+        sdf, n = _scene_distance(sc, st.start_x[o, s])
+        m = sdf - bd.radius[o, s]
+    return m
+
+
+@wp.func
 def _scene_margins(bd: Bodies, sc: SceneArgs, st: StepData, isl: int):
-    """Per sphere of the island's objects: how far its start position is from touching the scene (m), or
-    -1 when it carries a frozen friction force (always evaluated). The scene distance is 1-Lipschitz, so a
-    sphere whose margin exceeds its largest possible motion cannot touch the scene: it contributes nothing and
-    :func:`_evaluate` skips it."""
+    """:func:`sphere_margin` of every sphere of the island's objects, into ``st.margin``."""
     for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
         o = bd.island_objects[slot]
         for s in range(bd.radius.shape[1]):
-            m = wp.float64(-1.0)
-            if st.stiffness[o, s] != _ZERO and st.friction_scale[o, s] <= _ZERO:
-                sdf, n = _scene_distance(sc, st.start_x[o, s])
-                m = sdf - bd.radius[o, s]
-            st.margin[o, s] = m
+            st.margin[o, s] = sphere_margin(bd, sc, st, o, s)
 
 
 @wp.func
@@ -1566,6 +1571,7 @@ class FusedNewton:
         self._flagged = torch.zeros(layout.num_islands, dtype=torch.int32, device=model.mass_kg.device)
         self._value_wp, self._flagged_wp = _wp(self._value), _wp(self._flagged)
         self._directions = CholeskyDirections()  # solve_split's host factorisations (LAPACK in place)
+        self.device_newton = None  # the solver's DeviceNewton on this workspace, kept with it (device_newton=True)
         self.relayout(layout, island_mass_kg, min_median_radius_m)
         # solve_substeps: the states it advances and the per-object scene stiffness, N/m
         self.tm_now, self.tmdot = torch.zeros_like(self.tm), torch.zeros_like(self.tm)

@@ -878,7 +878,6 @@ class ImplicitEulerSolver:
         result, kind = None, None
         if on_device is not None:
             result, kind = self._device_newton_of(on_device).solve(objective, q0, None, None, settings), "device"
-            fused, split = (on_device, None) if fused is not None else (None, on_device)
         elif fused is not None:
             result, kind = fused.solve(objective, q0, None, None, settings), "fused"
         elif split is not None:
@@ -887,7 +886,8 @@ class ImplicitEulerSolver:
             self.counters[f"{kind}_handed_back" if result is None else f"{kind}_island_solves"] += (
                 1 if result is None else len(islands)
             )
-        kernel = fused if fused is not None else split  # the split solve's last state is its workspace's too
+        # the solve's last state is its workspace's (fused, split or the device schedule's)
+        kernel = on_device if on_device is not None else fused if fused is not None else split
         from_kernel = kernel is not None and result is not None  # the recorder reads the forces the kernel computes
         if result is None:  # not fused, or an island needs what only minimise does (projection, the error)
             result = minimise(objective, q0, objective.motion_scale(), objective.trust_radius(), settings,
@@ -916,11 +916,10 @@ class ImplicitEulerSolver:
     def _device_newton_of(self, workspace: FusedNewton) -> DeviceNewton:
         """The :class:`DeviceNewton` of a fused workspace (kept with it), on the broad phase's device: a GPU next
         to the CPU workspace gets copies."""
-        device = getattr(workspace, "device_newton", None)
-        if device is None:
+        if workspace.device_newton is None:
             here = wp.get_device(self.device) == wp.get_device(workspace.device)
-            device = workspace.device_newton = DeviceNewton(workspace, device=None if here else self.device)
-        return device
+            workspace.device_newton = DeviceNewton(workspace, device=None if here else self.device)
+        return workspace.device_newton
 
     def _solve_rigid_substeps(self, parts: list[tuple[int, list[list[int]]]], pairs_all: np.ndarray,
                               positions: list[torch.Tensor], stats: StepStats,
@@ -1008,11 +1007,8 @@ class ImplicitEulerSolver:
         h_object = torch.tensor([h_of[k] for k in objects], dtype=DTYPE)  # each object's sub-step, s
         scene_k = self.preset.contact_stiffness_factor * model.mass_kg / (h_object * h_object)
         kind = "device" if self.device_newton else "fused"
-        result = self._device_newton_of(fused).solve_substeps(
-            tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
-            scene_k, [self.preset.friction_smoothing_m_s * h for h in h_island], pairs, ps.mu,
-            self.broad_phase.margin_m, np.concatenate(pair_group),
-        ) if self.device_newton else fused.solve_substeps(
+        substeps = self._device_newton_of(fused) if self.device_newton else fused  # (the same call on either)
+        result = substeps.solve_substeps(
             tm_n, tmdot, h_island, [num_sub for num_sub, group in parts for _ in group], self.gravity, settings,
             scene_k, [self.preset.friction_smoothing_m_s * h for h in h_island], pairs, ps.mu,
             self.broad_phase.margin_m, np.concatenate(pair_group),

@@ -119,11 +119,18 @@ def test_iteration_cap_stops_islands_unconverged_as_the_fused_kernel():
 
 @pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
 def test_schedule_hands_back_a_non_finite_state(tile_factor):
+    """The same workspace solves a finite start (converged, as the fused kernel, on the same iterations) and hands a
+    non-finite one back (None), as the fused kernel does."""
     objective, q0, scale, trust, settings = _captured_solves(1)[0]
     fused = FusedNewton(objective.model, objective.layout, objective.contact, objective.island_mass_kg,
                         objective.min_median_radius_m)  # fmt: skip
     device = DeviceNewton(fused, tile_factor=tile_factor)
-    assert device.solve(objective, q0, scale, trust, settings) is not None
+    ref = fused.solve(objective, q0, scale, trust, settings)
+    ref_iterations, ref_q = ref.iterations.clone(), ref.q.clone()
+    solved = device.solve(objective, q0, scale, trust, settings)
+    assert solved is not None and bool(solved.converged.all())
+    assert torch.equal(solved.iterations, ref_iterations)
+    assert bool((objective.mass_norm(solved.q - ref_q) <= 1e-6 * settings.tolerance * scale).all())
     bad = q0.clone()
     bad[0, 0] = float("nan")
     assert device.solve(objective, bad, scale, trust, settings) is None
