@@ -77,7 +77,7 @@ from data_gen.sim.fused_newton import (
     scene_args,
 )
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
-from data_gen.sim.tile_cholesky import block_envelope, blocked_cholesky_solve, blocks
+from data_gen.sim.tile_cholesky import THREADS, block_envelope, blocked_cholesky_solve, blocks
 
 wp.set_module_options({"enable_backward": False})
 logger = logging.getLogger(__name__)
@@ -690,9 +690,12 @@ class DeviceNewton:
         self.graph = self.device.is_cuda if graph is None else bool(graph)
         self.tile_factor = self.device.is_cuda if tile_factor is None else bool(tile_factor)
         self.clear_entries = self.device.is_cuda  # the matrices cleared an entry per thread (GPU), else a row
-        if self.graph:  # a module cannot be loaded while a graph is captured: load both here
-            for module in (sys.modules[__name__], sys.modules[blocked_cholesky_solve.__module__]):
-                wp.load_module(module, device=self.device)
+        if self.graph:  # a module cannot be loaded while a graph is captured: every variant launched, here
+            tiles = sys.modules[blocked_cholesky_solve.__module__]
+            wp.load_module(sys.modules[__name__], device=self.device)
+            wp.load_module(tiles, device=self.device)  # (block_envelope_kernel: the default block)
+            # the factorisation's blocks of THREADS: warp compiles and loads a module once per block size
+            wp.load_module(tiles, device=self.device, block_dim=THREADS)
         self._info: Island | None = None
         self._info_key: tuple | None = None
         self._bodies_key: tuple | None = None

@@ -12,8 +12,16 @@ It solves ``((H + H^T) / 2 + ridge I) dq = -g`` per island, as :func:`data_gen.s
 ``_newton_direction`` do (their sums in another order: round-off apart). A matrix that is not positive definite
 leaves non-finite entries in ``dq`` (a pivot's square root of a negative number), which the caller tests.
 
-On the CPU warp runs the block's work in one thread (``tests/sim/test_sim_tile_cholesky.py`` checks it there
-against numpy); the cooperation of a block's threads runs on a GPU only.
+Barriers: ``tile_store`` issues none (warp 1.19), so a block this kernel stores to global memory and reads back
+later must be read after a barrier, or lanes read entries other lanes have not written yet. In the CUDA source
+warp generates for this kernel, every tile read from ``chol`` and ``dq`` is a shared tile whose load ends with a
+barrier, and each read of a stored block comes after such a load issued after the store: the diagonal block's
+load of ``hess`` for the factor's blocks, the preceding load in the same product for the substitutions.
+
+On the CPU warp runs a block in one thread by default; with ``wp.config.enable_cpu_blocks`` it runs its
+:data:`THREADS` lanes as cooperative fibers that meet at those barriers. ``tests/sim/test_sim_tile_cholesky.py``
+checks the kernel against numpy both ways; a missing barrier shows there as a stale read. What only a GPU runs:
+its own factorisation and products (MathDx) and its vectorised copies.
 """
 
 from __future__ import annotations

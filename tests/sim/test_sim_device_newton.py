@@ -9,6 +9,7 @@ import numpy as np
 
 import pytest
 import torch
+import warp as wp
 
 from data_gen.sim.device_newton import DeviceNewton
 from data_gen.sim.fused_newton import Bodies, FusedNewton, StepData, Work
@@ -16,6 +17,16 @@ from data_gen.sim.newton import NewtonSettings
 from tests.sim.test_sim_fused_newton import IDS, SCENES, _captured_solves, _objective
 
 D = torch.float64
+
+
+@pytest.fixture(params=["thread", "blocked", "lanes"])
+def tile_factor(request, monkeypatch) -> bool:
+    """How the islands' matrices are factorised: by a thread each (the CPU's default), by the blocked factorisation
+    with one thread per block, or by it with the :data:`~data_gen.sim.tile_cholesky.THREADS` threads of a GPU's
+    block as cooperative fibers (``wp.config.enable_cpu_blocks``: lanes that share each tile's work and meet at its
+    barriers, as on a GPU; ``tests/sim/test_sim_tile_cholesky.py``). Returns the ``tile_factor`` argument."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", request.param == "lanes")
+    return request.param != "thread"
 
 
 @pytest.mark.parametrize("scene", SCENES, ids=IDS)
@@ -57,7 +68,6 @@ def _same_solve(objective, fused_result, device_result, settings, scale, same_pa
     assert bool((gap <= gap_tol * settings.tolerance * scale).all()), (gap / (settings.tolerance * scale)).tolist()
 
 
-@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
 def test_schedule_takes_the_fused_kernels_path_on_recorded_steps(tile_factor):
     """Real steps of a thrown stack of one-handle boxes (landing, pairs, friction); every third with a tiny
     trust radius (updates cut by it). Checked against the fused kernel, itself checked against ``minimise``;
@@ -78,7 +88,6 @@ def test_schedule_takes_the_fused_kernels_path_on_recorded_steps(tile_factor):
     assert trust_limited > 0 and line_searched > 0  # both the trust limit and halvings were exercised
 
 
-@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
 @pytest.mark.parametrize("scene", SCENES, ids=IDS)
 def test_schedule_solves_islands_of_deformable_objects_as_the_fused_kernel(scene, tile_factor):
     """Two islands of 1-, 3- and 2-handle objects moving fast into the scene (40-160 trust-limited iterations,
@@ -117,7 +126,6 @@ def test_iteration_cap_stops_islands_unconverged_as_the_fused_kernel():
     assert bool((out.iterations == 1).all())
 
 
-@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
 def test_schedule_hands_back_a_non_finite_state(tile_factor):
     """The same workspace solves a finite start (converged, as the fused kernel, on the same iterations) and hands a
     non-finite one back (None), as the fused kernel does."""
@@ -177,6 +185,10 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
                         init(self, fused, device, True, True))  # fmt: skip
     tiled = _stack(throw, True)
     assert np.abs(np.stack([t.com_m for t in tiled.objects]) - com_f).max() < 1e-9
+    with monkeypatch.context() as m:  # and with a GPU block's lanes sharing each factorisation
+        m.setattr(wp.config, "enable_cpu_blocks", True)
+        lanes = _stack(throw, True)
+    assert np.abs(np.stack([t.com_m for t in lanes.objects]) - com_f).max() < 1e-9
     # on copies of each workspace, as next to a GPU (the model copied again at each regrouping): the same bits
     monkeypatch.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None:
                         init(self, fused, "cpu", False, False))  # fmt: skip
@@ -189,7 +201,6 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
     assert fused.info.counters["device_island_solves"] == 0
 
 
-@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
 def test_the_captured_schedule_gives_the_direct_launches_bits(tile_factor):
     """``graph=True``: the whole solve captured once (its two loops as ``wp.capture_while`` nodes, nested) and
     replayed, as on CUDA; on the CPU warp records the same launches, so the captured solve must give the direct
@@ -207,9 +218,43 @@ def test_the_captured_schedule_gives_the_direct_launches_bits(tile_factor):
     assert counters["evaluations"] > 0 and int(direct.iterations.max()) > 30  # both loops ran many times
 
 
-def _arrays(struct, struct_type) -> list:
-    import warp as wp
+def test_every_module_variant_the_capture_launches_is_loaded_before_it(monkeypatch):
+    """A CUDA graph capture cannot load a module (compiling and loading it synchronises the device), and warp
+    compiles a module once per block size: the factorisation's blocks of THREADS are a variant of their module
+    apart from its default one. So ``DeviceNewton(graph=True)`` loads every variant its launches use before any
+    capture; here the modules start unloaded, with a GPU's blocks (lanes), and no launch inside the capture may
+    find its variant missing."""
+    from warp._src.context import Module
 
+    import data_gen.sim.device_newton as device_module
+    import data_gen.sim.tile_cholesky as tile_module
+
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    objective, fused, q0 = _objective(SCENES[0], speed=1.0)
+    settings = NewtonSettings(iterations=300, tolerance=1e-6, line_search_steps=8)
+    for module in (device_module, tile_module):
+        wp.get_module(module.__name__).unload()
+    load = Module.load
+    missing, loads_in_capture = [], []
+
+    def checked(self, device, block_dim=None, *args, **kwargs):
+        device = wp.get_device(device)
+        if device.is_capturing:
+            key = (device.context, block_dim if block_dim is not None else self.options["block_dim"])
+            loads_in_capture.append((self.name, key[1]))
+            if self.execs.get(key) is None:
+                missing.append((self.name, key[1]))
+        return load(self, device, block_dim, *args, **kwargs)
+
+    monkeypatch.setattr(Module, "load", checked)
+    solver = DeviceNewton(fused, graph=True, tile_factor=True)
+    out = solver.solve(objective, q0, None, None, settings)
+    assert solver.graph and out is not None and bool(out.converged.all())
+    assert (tile_module.__name__, tile_module.THREADS) in loads_in_capture  # the check saw the tiled launch
+    assert not missing, missing
+
+
+def _arrays(struct, struct_type) -> list:
     return [getattr(struct, name) for name in struct_type.vars if isinstance(getattr(struct, name), wp.array)]
 
 
@@ -327,7 +372,6 @@ Measured: states 6e-12, rates 1.2e-9 (a state's round-off divided by the sub-ste
 8e-11, positions 6e-13, normals 1.4e-12."""
 
 
-@pytest.mark.parametrize("tile_factor", [False, True], ids=["thread", "blocked"])
 def test_device_substeps_equal_the_fused_substep_launch_on_a_simulations_steps(tile_factor, monkeypatch):
     """Every step of the thrown stack that the fused sub-step launch solves is solved again, right there on the
     same bindings, by ``DeviceNewton.solve_substeps``: the same counters and iterations, and states, rates,

@@ -1,13 +1,53 @@
-"""The blocked Cholesky of :mod:`data_gen.sim.tile_cholesky` (a thread block per island; one thread on the CPU)
-against numpy: factors and directions of island matrices of every size (whole blocks, partial ones, many), the
-symmetric part of an unsymmetric matrix, the ridge, islands left alone, and an indefinite matrix's non-finite
-update (what the caller tests)."""
+"""The blocked Cholesky of :mod:`data_gen.sim.tile_cholesky` (a thread block per island) against numpy: factors and
+directions of island matrices of every size (whole blocks, partial ones, many), the symmetric part of an
+unsymmetric matrix, the ridge, islands left alone, and an indefinite matrix's non-finite update (what the caller
+tests).
+
+Every test runs twice: with one thread per block (the CPU's default) and with the :data:`THREADS` threads of a
+GPU's block, which warp runs on the CPU as cooperative fibers (``wp.config.enable_cpu_blocks``): the lanes split
+each tile's loads, stores and products between them as on a GPU, and a lane runs on until the next barrier, so a
+block stored to global memory by some lanes and read back by others without a barrier between is read stale
+(:func:`test_lanes_read_what_others_stored_only_after_a_barrier`). What the CPU cannot show: the GPU's own
+(MathDx) factorisation and products, and its vectorised copies."""
 
 import numpy as np
 import pytest
 import warp as wp
 
-from data_gen.sim.tile_cholesky import TILE, block_envelope, blocked_cholesky_solve, blocks
+from data_gen.sim.tile_cholesky import THREADS, TILE, block_envelope, blocked_cholesky_solve, blocks
+
+
+@pytest.fixture(autouse=True, params=[1, THREADS], ids=["one-lane", "lanes"])
+def lanes(request, monkeypatch) -> int:
+    """Threads per block the launches get on the CPU: 1, or :data:`THREADS` cooperative fibers."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", request.param > 1)
+    return request.param
+
+
+@wp.kernel
+def _neighbour_kernel(stored: wp.array(dtype=wp.float64), seen: wp.array2d(dtype=wp.float64), barrier: int):
+    """Lane l stores l + 1, then reads lane l + 1's value, without a barrier between or with one (a tile sum)."""
+    i, lane = wp.tid()
+    stored[lane] = wp.float64(lane + 1)
+    if barrier != 0:
+        wp.tile_sum(wp.tile_ones(shape=THREADS, dtype=wp.float64))
+    seen[i, lane] = stored[(lane + 1) % THREADS]
+
+
+def test_lanes_read_what_others_stored_only_after_a_barrier(lanes):
+    """The lanes mode has teeth: without a barrier, lane l reads lane l + 1's slot before that lane ran (0); after
+    one, every lane reads it. With one lane per block the loop over lanes hides the difference."""
+    for barrier in (0, 1):
+        stored = wp.zeros(THREADS, dtype=wp.float64)
+        seen = wp.zeros((1, THREADS), dtype=wp.float64)
+        wp.launch_tiled(_neighbour_kernel, dim=[1], inputs=[stored, seen, barrier], block_dim=THREADS)
+        want = (np.arange(THREADS) + 1) % THREADS + 1.0
+        if lanes == 1:  # one thread: lane 0 only, reading slot 1 it never stored
+            assert seen.numpy()[0, 0] == 0.0
+        elif barrier:
+            assert np.array_equal(seen.numpy()[0], want)
+        else:
+            assert seen.numpy()[0, 0] == 0.0 and seen.numpy()[0, -1] == 1.0  # lane 63 ran after lane 0 stored
 
 
 def _arrays(hess: np.ndarray, grad: np.ndarray, ridge, active):
