@@ -254,6 +254,47 @@ def test_every_module_variant_the_capture_launches_is_loaded_before_it(monkeypat
     assert not missing, missing
 
 
+def test_nothing_is_allocated_while_the_schedule_is_captured(monkeypatch):
+    """A capture must not allocate (a CUDA device without graph memory pools refuses, and memory allocated
+    into a graph lives as long as it): every buffer of a solve, of a step's sub-steps and of their copies on
+    another device is allocated before ``DeviceNewton`` starts capturing. Recorded on the CPU's capture, with the
+    GPU's factorisation and clearing, through a simulation's steps (sub-step schedules, regroupings) and a solve
+    of deformable islands."""
+    from warp._src.context import CpuDefaultAllocator
+
+    allocate = CpuDefaultAllocator.allocate
+    during_capture: list[int] = []
+    captures = 0
+
+    def recorded(self, size_in_bytes):
+        if wp.get_device("cpu").is_capturing:
+            during_capture.append(size_in_bytes)
+        return allocate(self, size_in_bytes)
+
+    run = DeviceNewton._run
+
+    def counted(self, schedule):
+        nonlocal captures
+        captures += int(self.graph)
+        self.clear_entries = True
+        return run(self, schedule)
+
+    init = DeviceNewton.__init__
+    monkeypatch.setattr(CpuDefaultAllocator, "allocate", recorded)
+    monkeypatch.setattr(DeviceNewton, "_run", counted)
+    for device in (None, "cpu"):
+        with monkeypatch.context() as m:
+            m.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None,
+                      on=device: init(self, fused, on, True, True))  # fmt: skip
+            result = _stack(True, True, frames=8)
+        assert result.info.counters["device_island_solves"] > 0
+        objective, fused, q0 = _objective(SCENES[1], speed=1.0)
+        settings = NewtonSettings(iterations=300, tolerance=1e-6, line_search_steps=8)
+        out = DeviceNewton(fused, device=device, graph=True, tile_factor=True).solve(objective, q0, None, None, settings)
+        assert out is not None
+    assert captures >= 10 and not during_capture, (captures, during_capture)
+
+
 def _arrays(struct, struct_type) -> list:
     return [getattr(struct, name) for name in struct_type.vars if isinstance(getattr(struct, name), wp.array)]
 
