@@ -75,6 +75,7 @@ from data_gen.sim import KERNEL_MODULES  # noqa: E402
 from data_gen.sim.contact import PairFinder  # noqa: E402
 from data_gen.sim.presets import load_preset  # noqa: E402
 from data_gen.sim.threads import torch_threads  # noqa: E402
+from data_gen.sim.tile_cholesky import THREADS  # noqa: E402
 from data_gen.sim.world import SimulationError  # noqa: E402
 from newtphys import schema  # noqa: E402
 
@@ -126,11 +127,21 @@ def check_solver(device: str, boxes: int) -> dict:
         frames = int(round(bench_peers.DURATION_S * bench_peers.FPS)) + 1
         runs[name] = {"wall_s": row["wall_s"], "cpu_s": row["cpu_s"], "fps": frames / row["wall_s"],
                       "newton_iterations": row["newton_iterations"], "counters": row["counters"],
+                      "timings_s": {k: float(v) for k, v in row["timings_s"].items()},
                       "checks": bench_peers.pile_checks(com), "final_com_m": com.tolist()}  # fmt: skip
     out = {"boxes": boxes, "runs": runs}
     if all("error" not in r for r in runs.values()):
         a, b = (np.asarray(runs[k]["final_com_m"]) for k in ("cpu_fused", "device"))
         out["final_com_max_abs_diff_m"] = float(np.abs(a - b).max())
+    return out
+
+
+def _solve_seconds(timings_s: dict) -> str:
+    """The Newton solves' seconds, and where a device schedule ran, its part and its captures' part of that."""
+    out = f"; Newton {timings_s.get('newton', 0.0):.2f} s"
+    if timings_s.get("device_solve"):
+        out += (f" (device schedule {timings_s['device_solve']:.2f} s, of which graph captures "
+                f"{timings_s.get('device_capture', 0.0):.2f} s)")
     return out
 
 
@@ -327,6 +338,8 @@ def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> t
         t0 = time.perf_counter()
         for name in ("data_gen.sim.device_newton", "data_gen.sim.tile_cholesky"):
             wp.load_module(importlib.import_module(name), device=device)
+        # and the factorisation's variant (blocks of THREADS threads: warp compiles a module once per block size)
+        wp.load_module(importlib.import_module("data_gen.sim.tile_cholesky"), device=device, block_dim=THREADS)
         out["device_kernel_load_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
@@ -341,6 +354,9 @@ def run_sequence(device: str, spec: SequenceSpec, args: argparse.Namespace) -> t
         out["device_solver_counters"] = {k: int(on_device.info.counters[k]) for k in
                                          ("island_solves", "device_island_solves", "device_handed_back",
                                           "unconverged_solves")}  # fmt: skip
+        # the Newton solves' wall time, the device schedule's part of it and its graphs' captures
+        out["device_solver_timings_s"] = {k: float(on_device.info.timings_s.get(k, 0.0)) for k in
+                                          ("newton", "device_solve", "device_capture", "broad_phase")}  # fmt: skip
         com = [np.abs(a.com_m - b.com_m).max() for a, b in zip(result.objects, on_device.objects)]
         out["device_solver_com_max_abs_diff_m"] = float(max(com))
     out["pose_device_vs_cpu"] = _compare_poses(objects, result, device)
@@ -492,7 +508,7 @@ def main() -> None:
             print(f"[solver] {name}: {sol['boxes']} stiff boxes, 1 s: {run['wall_s']:.2f} s wall ({run['fps']:.1f} FPS), "
                   f"{run['newton_iterations']} Newton iterations, island solves {c['island_solves']} (device "
                   f"{c['device_island_solves']}, handed back {c['device_handed_back']}), tunnelled "
-                  f"{run['checks']['tunnelled']}", flush=True)  # fmt: skip
+                  f"{run['checks']['tunnelled']}" + _solve_seconds(run["timings_s"]), flush=True)  # fmt: skip
         if "final_com_max_abs_diff_m" in sol:
             print(f"[solver] final centres differ by at most {sol['final_com_max_abs_diff_m']:.3g} m "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
@@ -520,7 +536,8 @@ def main() -> None:
                 print(f"[{spec.name}] device solver: kernels loaded in {seq['device_kernel_load_s']:.1f} s, simulate "
                       f"{seq['simulate_device_s']:.1f} s, " + ", ".join(f"{k} {v}" for k, v in
                       seq["device_solver_counters"].items()) + f", centres differ from the CPU's by at most "
-                      f"{seq['device_solver_com_max_abs_diff_m']:.3g} m", flush=True)  # fmt: skip
+                      f"{seq['device_solver_com_max_abs_diff_m']:.3g} m" + _solve_seconds(seq["device_solver_timings_s"]),
+                      flush=True)  # fmt: skip
                 if seq["device_solver_counters"]["device_handed_back"]:
                     failures.append(f"{spec.name} device solver handed back")
             print(f"[{spec.name}] pose: " + ", ".join(f"{k} {v:.3g}" for k, v in seq["pose_device_vs_cpu"].items()),

@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
+from collections import OrderedDict
 from collections.abc import Sequence
 
 import numpy as np
@@ -84,6 +86,9 @@ logger = logging.getLogger(__name__)
 
 _ZERO = wp.constant(wp.float64(0.0))
 _ONE = wp.constant(wp.float64(1.0))
+
+GRAPHS_KEPT = 8
+"""Captured schedules a :class:`DeviceNewton` keeps for reuse (a few groupings and pair counts of its workspace)."""
 
 # an island's phase between launches
 EVALUATE = wp.constant(0)  # its derivatives at q are wanted (an iteration starts with an evaluation)
@@ -332,6 +337,8 @@ def pairs_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
     it, or frozen; in sub-steps those that can touch within the sub-step, ``st.live_order``): pair contact with its
     frozen friction, the four blocks of the matrix where j moves."""
     k = wp.tid()  # slot k of the pairs ordered by island: island isl's evaluated pairs are the first
+    if k >= st.pair_start[st.pair_start.shape[0] - 1]:  # past the step's pairs (launched over the buffers' capacity)
+        return
     isl = isl_info.object_island[st.obj_i[st.pair_order[k]]]  # live_count[isl] of its slots (all of them outside sub-steps)
     mode = isl_info.mode[isl]
     if mode == NOTHING or k >= st.pair_start[isl] + st.live_count[isl]:
@@ -680,11 +687,30 @@ class DeviceNewton:
     recording: the same schedule replayed, how the tests check the captured structure without a GPU). With
     ``tile_factor`` (the default on CUDA) the islands' matrices
     are factorised by :mod:`data_gen.sim.tile_cholesky`, a block of threads per island, instead of one thread
-    each (the CPU's default: there a block is one thread, and the envelope factorisation costs less)."""
+    each (the CPU's default: there a block is one thread, and the envelope factorisation costs less).
 
-    def __init__(self, fused: FusedNewton, device=None, graph: bool | None = None,
-                 tile_factor: bool | None = None) -> None:  # fmt: skip
+    A captured schedule is kept (the last :data:`GRAPHS_KEPT`) and launched again by a later solve whose launches
+    would be the same: the same kernels with the same argument bytes (the structs' array pointers, shapes and
+    scalars, :func:`_launch_bytes`) over the same dimensions. Those are all a graph holds, and the schedule's
+    launches are a function of them, so the replay is the capture that solve would have made; the arrays'
+    contents are read when it runs. A workspace's buffers keep their addresses between steps, so a step with
+    the same islands and pair count as an earlier one reuses its graph.
+
+    ``timings`` (a dict, e.g. the solver's) gets the wall seconds of the solves added to ``device_solve`` (from
+    the first launch to the results back on the host, the capture included) and of their captures to
+    ``device_capture``; ``counters`` (a dict, e.g. the solver's) counts ``device_graphs_captured`` and
+    ``device_graphs_reused``."""
+
+    def __init__(self, fused: FusedNewton, device=None, graph: bool | None = None, tile_factor: bool | None = None,
+                 timings: dict[str, float] | None = None, counters: dict[str, int] | None = None) -> None:  # fmt: skip
         self.fused = fused
+        self.timings = timings if timings is not None else {}
+        for key in ("device_solve", "device_capture"):
+            self.timings.setdefault(key, 0.0)
+        self.counters = counters if counters is not None else {}
+        for key in ("device_graphs_captured", "device_graphs_reused"):
+            self.counters.setdefault(key, 0)
+        self._graphs: OrderedDict[tuple, wp.Graph] = OrderedDict()
         self.mirror = StructMirror(device) if device is not None else None
         self.device = self.mirror.device if self.mirror is not None else wp.get_device(fused.device)
         self.graph = self.device.is_cuda if graph is None else bool(graph)
@@ -763,7 +789,7 @@ class DeviceNewton:
         wp.launch(elastic_kernel, dim=(n, num_points), device=device, inputs=[bd, st, wk, info])
         wp.launch(scene_kernel, dim=(n, num_spheres), device=device, inputs=[bd, sc, st, wk, info])
         if st.num_pairs:
-            wp.launch(pairs_kernel, dim=st.num_pairs, device=device, inputs=[bd, st, wk, info])
+            wp.launch(pairs_kernel, dim=_pair_threads(st, self.graph), device=device, inputs=[bd, st, wk, info])
 
     def _start(self, bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, info: Island, threshold: wp.array,
                trust: wp.array, limits_given: bool, tolerance: float) -> None:  # fmt: skip
@@ -843,24 +869,49 @@ class DeviceNewton:
             self._first_block = wp.zeros(key, dtype=wp.int32, device=self.device)
         return self._first_block
 
-    def _run(self, schedule) -> None:
-        """``schedule()``'s launches, captured as one graph and launched (``graph``), else launched directly. (What
-        they need is allocated before: nothing is allocated during a capture.)"""
+    def _run(self, schedule, kind: str, structs: tuple, *scalars) -> None:
+        """``schedule()``'s launches, captured as one graph and launched (``graph``), else launched directly; a
+        graph captured for the same launches (``kind``, ``structs`` and ``scalars``: :meth:`_schedule_key`) is
+        launched again instead of capturing. (What the launches need is allocated first: nothing is allocated
+        during a capture.)"""
         self._first_blocks()
-        if self.graph:
-            try:
-                with wp.ScopedCapture(device=self.device) as capture:
-                    schedule()
-            except Exception as err:  # (e.g. a driver without conditional graph nodes) launched directly instead
-                logger.warning("DeviceNewton: the solve's graph could not be captured on %s (%s): launching "
-                               "directly from now on (the loops' conditions are then read on the host)",
-                               self.device, err)  # fmt: skip
-                self.graph = False
-                schedule()
-            else:
-                wp.capture_launch(capture.graph)
-        else:
+        if not self.graph:
             schedule()
+            return
+        key = self._schedule_key(kind, structs, *scalars)
+        graph = self._graphs.get(key)
+        if graph is not None:
+            self._graphs.move_to_end(key)
+            self.counters["device_graphs_reused"] += 1
+            wp.capture_launch(graph)
+            return
+        try:
+            t0 = time.perf_counter()
+            with wp.ScopedCapture(device=self.device) as capture:
+                schedule()
+            self.timings["device_capture"] += time.perf_counter() - t0
+        except Exception as err:  # (e.g. a driver without conditional graph nodes) launched directly instead
+            logger.warning("DeviceNewton: the solve's graph could not be captured on %s (%s): launching "
+                           "directly from now on (the loops' conditions are then read on the host)",
+                           self.device, err)  # fmt: skip
+            self.graph = False
+            self._graphs.clear()
+            schedule()
+            return
+        self.counters["device_graphs_captured"] += 1
+        self._graphs[key] = capture.graph
+        while len(self._graphs) > GRAPHS_KEPT:
+            self._graphs.popitem(last=False)
+        wp.capture_launch(capture.graph)
+
+    def _schedule_key(self, kind: str, structs: tuple, *scalars) -> tuple:
+        """What the launches of a ``kind`` schedule over ``structs`` (its struct and array arguments) depend on:
+        their bytes, the workspace's dimensions, this solver's choices and the schedule's ``scalars``."""
+        f = self.fused
+        dims = (f.shape, tuple(f._keep["cub_volume"].shape), tuple(f._keep["radius"].shape),
+                _pair_threads(structs[2], self.graph))  # fmt: skip
+        return (kind, _launch_bytes(*structs, self._first_block), dims, self.tile_factor, self.clear_entries,
+                float(f._gravity_norm), scalars)  # fmt: skip
 
     def solve(self, objective, q0: torch.Tensor, scale: torch.Tensor | None, trust_m: torch.Tensor | None,
               settings: NewtonSettings) -> NewtonResult | None:  # fmt: skip
@@ -877,8 +928,11 @@ class DeviceNewton:
             self._start(bd, sc, st, wk, info, threshold, trust, given, settings.tolerance)
             wp.capture_while(info.iterating, iteration)
 
-        self._run(schedule)
+        t0 = time.perf_counter()
+        self._run(schedule, "solve", (bd, sc, st, wk, info, threshold, trust), bool(given), float(settings.tolerance),
+                  int(settings.iterations), int(settings.line_search_steps))  # fmt: skip
         self._bring_back(st, wk, threshold, trust)
+        self.timings["device_solve"] += time.perf_counter() - t0
         if bool((f.stats[:, STATUS] != SOLVED).any()):
             return None
         return f._result()
@@ -914,14 +968,48 @@ class DeviceNewton:
                 wp.capture_while(info.iterating, iteration)
                 wp.launch(substep_end_kernel, dim=n_isl, device=device, inputs=[bd, sc, st, wk, ss, info, j])
 
-        self._run(schedule)
+        t0 = time.perf_counter()
+        self._run(schedule, "substeps", (bd, sc, st, wk, ss, info, threshold, trust), count_max,
+                  int(settings.iterations), int(settings.line_search_steps))  # fmt: skip
         if self.mirror is not None:  # what substep_result reads
             for name in ("tm_now", "tmdot", "stats", "scene_sums", "pair_sums"):
                 wp.copy(getattr(ss_host, name), getattr(ss, name))
             for name in ("sphere_x", "scene_force", "scene_normal", "pair_force", "pair_normal"):
                 wp.copy(getattr(ss_host.forces, name), getattr(ss.forces, name))
-            wp.synchronize_device(device)
+        wp.synchronize_device(device)
+        self.timings["device_solve"] += time.perf_counter() - t0
         return f.substep_result(count_max, count, num_pairs, groups, pair_group is not None)
+
+
+def _pair_threads(st: StepData, graph: bool) -> int:
+    """Threads of the pairs launch for the step's ``num_pairs`` (0 without pairs): that count launched directly;
+    for a graph the next power of two (at most the pair buffers' capacity), those past the pairs stopping at
+    ``pair_start[-1]``, so that a graph fits every step whose pair count rounds to the same power (at most twice
+    the threads a launch needs; a GPU's idle threads cost little, a CPU's loop over them does)."""
+    p = int(st.num_pairs)
+    if p == 0 or not graph:
+        return p
+    return min(1 << (p - 1).bit_length(), st.obj_i.shape[0])
+
+
+def _launch_bytes(*values) -> tuple:
+    """What launches pass to the device for each of ``values``: a warp struct's packed bytes (its arrays'
+    pointers, shapes and strides, its scalars, its structs), an array's pointer, shape and strides.
+
+    ``StepData.num_pairs`` is left out: no kernel of the schedule reads it; its pairs launch has
+    :func:`_pair_threads` threads (part of the key)."""
+    out = []
+    for value in values:
+        if isinstance(value, wp.array):
+            out.append((value.ptr, value.shape, value.strides, value.dtype))
+        elif isinstance(value, StepData.cls):
+            pairs = value.num_pairs
+            value.num_pairs = 0
+            out.append(bytes(value.__ctype__()))
+            value.num_pairs = pairs
+        else:
+            out.append(bytes(value.__ctype__()))
+    return tuple(out)
 
 
 def _view(array: wp.array, shape: tuple[int, ...]) -> wp.array:

@@ -27,7 +27,8 @@ solves done by :class:`~data_gen.sim.fused_newton.FusedNewton`), ``fused_handed_
 handed back to :func:`minimise`), ``split_island_solves`` (deformable island solves done by
 :meth:`~data_gen.sim.fused_newton.FusedNewton.solve_split`) and ``split_handed_back`` (group solves it handed
 back), ``device_island_solves`` / ``device_handed_back`` (the same for :class:`~data_gen.sim.device_newton.DeviceNewton`,
-with ``device_newton``).
+with ``device_newton``), ``device_graphs_captured`` / ``device_graphs_reused`` (its solves' graphs, where it
+captures them: CUDA).
 
 Sleeping: an awake object whose fastest cubature point moves slower than ``sleep_speed_m_s`` while it is
 supported (in contact) for ``sleep_steps`` consecutive steps is frozen (no Newton work, its contact
@@ -398,6 +399,8 @@ class ImplicitEulerSolver:
                 "split_handed_back",
                 "device_island_solves",
                 "device_handed_back",
+                "device_graphs_captured",
+                "device_graphs_reused",
                 "elastic_matrices_formed",
                 "elastic_matrices_reused",
                 "elastic_matrices_refreshed",
@@ -918,7 +921,8 @@ class ImplicitEulerSolver:
         to the CPU workspace gets copies."""
         if workspace.device_newton is None:
             here = wp.get_device(self.device) == wp.get_device(workspace.device)
-            workspace.device_newton = DeviceNewton(workspace, device=None if here else self.device)
+            workspace.device_newton = DeviceNewton(workspace, device=None if here else self.device,
+                                                   timings=self.timings, counters=self.counters)  # fmt: skip
         return workspace.device_newton
 
     def _solve_rigid_substeps(self, parts: list[tuple[int, list[list[int]]]], pairs_all: np.ndarray,

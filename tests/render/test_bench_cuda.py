@@ -71,6 +71,8 @@ def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
         counters = seq["device_solver_counters"]
         assert counters["device_island_solves"] == counters["island_solves"] > 0
         assert counters["device_handed_back"] == 0 and seq["device_solver_com_max_abs_diff_m"] < 1e-9
+        timed = seq["device_solver_timings_s"]  # (no graph on the CPU: no capture)
+        assert timed["device_capture"] == 0.0 < timed["device_solve"] <= timed["newton"]
         assert all(v > 0 for v in seq["fps"].values())
         assert all(v == 0 for k, v in seq["pose_device_vs_cpu"].items() if k.endswith("diff") or "_diff_" in k)
         assert len(seq["maps_device_vs_cpu"]) == 13
@@ -87,6 +89,8 @@ def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
     assert fused["counters"]["device_island_solves"] == 0 and device["counters"]["device_handed_back"] == 0
     assert device["newton_iterations"] == fused["newton_iterations"]
     assert solver["final_com_max_abs_diff_m"] < 1e-9
+    assert 0.0 < device["timings_s"]["device_solve"] <= device["timings_s"]["newton"]
+    assert "device_solve" not in fused["timings_s"]
     assert not device["checks"]["tunnelled"] and not fused["checks"]["tunnelled"]
 
 

@@ -14,9 +14,16 @@ import warp as wp
 from data_gen.sim.device_newton import DeviceNewton
 from data_gen.sim.fused_newton import Bodies, FusedNewton, StepData, Work
 from data_gen.sim.newton import NewtonSettings
-from tests.sim.test_sim_fused_newton import IDS, SCENES, _captured_solves, _objective
+from tests.sim.test_sim_fused_newton import GRAVITY, IDS, SCENES, _captured_solves, _objective
 
 D = torch.float64
+_INIT = DeviceNewton.__init__
+
+
+def _built_as(patch, device, graph: bool | None, tile_factor: bool | None) -> None:
+    """The ``DeviceNewton`` the solver builds gets these arguments (``patch``: a monkeypatch or its context)."""
+    patch.setattr(DeviceNewton, "__init__", lambda self, fused, timings=None, counters=None, **_:
+                  _INIT(self, fused, device, graph, tile_factor, timings, counters))  # fmt: skip
 
 
 @pytest.fixture(params=["thread", "blocked", "lanes"])
@@ -180,18 +187,20 @@ def test_simulation_with_the_device_schedule_agrees_with_the_fused_kernel_and_re
     assert np.abs(com_d - com_f).max() < 1e-9, np.abs(com_d - com_f).max()
     # the GPU's factorisation (a block per island) and its captured schedule (warp's CPU graph recording) in the
     # whole simulation too
-    init = DeviceNewton.__init__
-    monkeypatch.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None:
-                        init(self, fused, device, True, True))  # fmt: skip
+    _built_as(monkeypatch, None, True, True)
     tiled = _stack(throw, True)
     assert np.abs(np.stack([t.com_m for t in tiled.objects]) - com_f).max() < 1e-9
+    # the solves' wall time and their captures' part of it (a GPU run weighs the two: a graph per solve)
+    direct_s, tiled_s = device.info.timings_s, tiled.info.timings_s
+    assert direct_s["device_capture"] == 0.0 < direct_s["device_solve"] <= direct_s["newton"]
+    assert 0.0 < tiled_s["device_capture"] < tiled_s["device_solve"] <= tiled_s["newton"]
+    assert "device_solve" not in fused.info.timings_s
     with monkeypatch.context() as m:  # and with a GPU block's lanes sharing each factorisation
         m.setattr(wp.config, "enable_cpu_blocks", True)
         lanes = _stack(throw, True)
     assert np.abs(np.stack([t.com_m for t in lanes.objects]) - com_f).max() < 1e-9
     # on copies of each workspace, as next to a GPU (the model copied again at each regrouping): the same bits
-    monkeypatch.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None:
-                        init(self, fused, "cpu", False, False))  # fmt: skip
+    _built_as(monkeypatch, "cpu", False, False)
     copied = _stack(throw, True)
     assert np.array_equal(np.stack([t.com_m for t in copied.objects]), com_d)
     np.testing.assert_allclose(np.diff(np.sort(com_d[:, -1, 2])), 0.1, atol=0.01)
@@ -216,6 +225,76 @@ def test_the_captured_schedule_gives_the_direct_launches_bits(tile_factor):
         assert captured.graph  # (a failed capture logs and turns it off)
         assert torch.equal(out.q, q) and out.counters == counters
     assert counters["evaluations"] > 0 and int(direct.iterations.max()) > 30  # both loops ran many times
+
+
+@pytest.mark.parametrize("graphs_kept", [8, 1])
+def test_captured_schedules_are_launched_again_where_their_launches_would_repeat(graphs_kept, monkeypatch):
+    """A graph is launched again by a solve whose launches would be the same bytes (``_schedule_key``): through
+    a simulation's steps (new pair counts, sub-step counts, regroupings, pair buffers reallocated) the reused
+    graphs give the bits of launching every schedule directly, with most steps reusing one; keeping a single
+    graph (evicted at each new key) gives them too."""
+    import data_gen.sim.device_newton as device_module
+
+    monkeypatch.setattr(device_module, "GRAPHS_KEPT", graphs_kept)
+    runs = {}
+    for graph in (False, True):
+        with monkeypatch.context() as m:
+            _built_as(m, None, graph, True)
+            runs[graph] = _stack(True, True, frames=25)
+    direct, captured = (np.stack([t.com_m for t in runs[g].objects]) for g in (False, True))
+    assert np.array_equal(direct, captured)
+    counters = runs[True].info.counters
+    assert counters["device_graphs_captured"] > 0 and counters["device_graphs_reused"] > counters["device_graphs_captured"]
+    assert runs[False].info.counters["device_graphs_captured"] == runs[False].info.counters["device_graphs_reused"] == 0
+
+
+def test_a_graph_is_launched_again_only_for_the_same_launches():
+    """Repeating a solve launches its graph again (the same bits as launching directly); another iteration cap
+    (a scalar of the schedule) or gravity turned by 30 degrees (a vector inside the step data struct, passed by
+    value; its norm, which the key also holds, unchanged) makes another graph, and each solve equals the direct
+    launches of its own arguments."""
+    objective, fused, q0 = _objective(SCENES[1], speed=1.0)
+    solver = DeviceNewton(fused, graph=True, tile_factor=True)
+    first = NewtonSettings(iterations=300, tolerance=1e-6, line_search_steps=8)
+    capped = NewtonSettings(iterations=3, tolerance=1e-6, line_search_steps=8)
+    g = float(GRAVITY.norm())
+    turned = torch.tensor([0.0, g * np.sin(np.pi / 6), -g * np.cos(np.pi / 6)], dtype=D)
+    results = []
+    for settings, gravity, graphs, reused in ((first, GRAVITY, 1, 0), (first, GRAVITY, 1, 1), (capped, GRAVITY, 2, 1),
+                                               (first, turned, 3, 1), (first, turned, 3, 2)):  # fmt: skip
+        objective.gravity = gravity.clone()
+        want = DeviceNewton(fused, graph=False, tile_factor=True).solve(objective, q0, None, None, settings).q.clone()
+        got = solver.solve(objective, q0, None, None, settings).q.clone()
+        assert torch.equal(got, want)
+        assert (solver.counters["device_graphs_captured"], solver.counters["device_graphs_reused"]) == (graphs, reused)
+        results.append(got)
+    assert not torch.equal(results[0], results[2]) and not torch.equal(results[0], results[3])
+
+
+def test_the_graph_key_follows_the_pairs_launch():
+    """The pair count is left out of the step data's bytes in the key (no kernel reads it) but the pairs launch
+    of a graph has a power of two of threads: counts rounding to the same power share a key, others do not.
+    Launched directly, the launch has the count's threads."""
+    from data_gen.sim.device_newton import _pair_threads
+
+    objective, fused, q0 = _objective(SCENES[1], speed=1.0)
+    settings = NewtonSettings(iterations=300, tolerance=1e-6, line_search_steps=8)
+    solver = DeviceNewton(fused, graph=True, tile_factor=True)
+    solver.solve(objective, q0, None, None, settings)
+    st = fused._step
+    capacity = st.obj_i.shape[0]
+    structs = (fused.bodies, fused.scene, st, fused.work, solver._island_info(), *fused._limits)
+    keys = {}
+    for count in (5, 7, 8, 9, capacity - 1):
+        st.num_pairs = count
+        keys[count] = solver._schedule_key("solve", structs, 1)
+    assert keys[5] == keys[7] == keys[8] != keys[9] != keys[capacity - 1]
+    st.num_pairs = 9
+    assert (_pair_threads(st, True), _pair_threads(st, False)) == (16, 9)
+    st.num_pairs = capacity - 1
+    assert _pair_threads(st, True) == capacity  # (never past the pair buffers)
+    st.num_pairs = 0
+    assert _pair_threads(st, True) == 0
 
 
 def test_every_module_variant_the_capture_launches_is_loaded_before_it(monkeypatch):
@@ -273,19 +352,17 @@ def test_nothing_is_allocated_while_the_schedule_is_captured(monkeypatch):
 
     run = DeviceNewton._run
 
-    def counted(self, schedule):
+    def counted(self, schedule, *args):
         nonlocal captures
         captures += int(self.graph)
         self.clear_entries = True
-        return run(self, schedule)
+        return run(self, schedule, *args)
 
-    init = DeviceNewton.__init__
     monkeypatch.setattr(CpuDefaultAllocator, "allocate", recorded)
     monkeypatch.setattr(DeviceNewton, "_run", counted)
     for device in (None, "cpu"):
         with monkeypatch.context() as m:
-            m.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None,
-                      on=device: init(self, fused, on, True, True))  # fmt: skip
+            _built_as(m, device, True, True)
             result = _stack(True, True, frames=8)
         assert result.info.counters["device_island_solves"] > 0
         objective, fused, q0 = _objective(SCENES[1], speed=1.0)
@@ -476,12 +553,10 @@ def test_copies_follow_the_workspace_through_its_regroupings(monkeypatch):
         return relayout(self, layout, *args)
 
     def run(copies: bool):
-        init = DeviceNewton.__init__
         with monkeypatch.context() as m:
             m.setattr(FusedNewton, "relayout", counted)
             if copies:
-                m.setattr(DeviceNewton, "__init__", lambda self, fused, device=None, graph=None, tile_factor=None:
-                          init(self, fused, "cpu", graph, tile_factor))  # fmt: skip
+                _built_as(m, "cpu", None, None)
             specs = [
                 SimObjectSpec(f"box_{k}", grid_box(half, (5, 5, 4)), 0.14 * 0.14 * 0.1, Material(1e9, 0.3, 1000.0),
                               position_m=pos, num_handles=1, velocity_m_s=vel)
