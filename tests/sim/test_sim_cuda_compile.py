@@ -41,3 +41,26 @@ def test_sim_kernels_compile_to_ptx_for_sm90(name, tmp_path):
     ptx = paths[0].read_text()
     assert paths[0].suffix == ".ptx" and f".target sm_{ARCH}" in ptx
     assert ".entry" in ptx  # at least one kernel entry point was generated
+
+
+@pytest.mark.slow
+def test_the_blocked_cholesky_compiles_for_the_block_size_it_is_launched_with(tmp_path):
+    """``tile_cholesky``'s factorisation is launched with blocks of ``THREADS`` threads, a variant of its module
+    apart from the default block size compiled above (warp compiles a module per block size, and MathDx's
+    factorisation and products are generated for the block size: ``potrf_..._64``). About 40 s on 2 cores."""
+    archs = _nvrtc_archs()
+    if ARCH not in archs:
+        pytest.skip(f"this warp build cannot compile for sm_{ARCH} (NVRTC archs: {archs})")
+    from data_gen.sim import tile_cholesky
+
+    module = wp.get_module(tile_cholesky.__name__)
+    default = module.options["block_dim"]
+    module.options["block_dim"] = tile_cholesky.THREADS
+    try:
+        paths = wp.compile_aot_module(tile_cholesky, arch=ARCH, module_dir=tmp_path, use_ptx=True)
+    finally:
+        module.options["block_dim"] = default
+        module.mark_modified()
+    source = next(tmp_path.glob("*.cu")).read_text()
+    assert f"potrf_32_32_1_{ARCH}_{tile_cholesky.THREADS}_" in source  # the factorisation for 64 threads
+    assert ".entry" in paths[0].read_text()
