@@ -62,9 +62,12 @@ from data_gen.sim.fused_newton import (
     Substeps,
     SubstepResult,
     Work,
-    _final_forces,
-    _force_sums,
-    _substep_start,
+    add_pair_sums,
+    live_pair_force,
+    object_scene_sums,
+    pair_start_live,
+    sphere_force,
+    sphere_start,
     _cholesky,
     _deformation_gradient,
     _load_state,
@@ -118,6 +121,7 @@ class Island:
     biggest: wp.array(dtype=wp.float64)  # the largest diagonal entry of its matrix
     iterating: wp.array(dtype=wp.int32)  # [0]: some island is not DONE
     searching: wp.array(dtype=wp.int32)  # [0]: some island is in SEARCH
+    live: wp.array(dtype=wp.int32)  # (pair capacity,) 1: the pair in slot k of pair_order is evaluated
 
 
 @wp.func
@@ -334,16 +338,16 @@ def scene_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl_info: Is
 @wp.kernel
 def pairs_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
     """A candidate pair p the island evaluates (its side i on an object of the island; side j another object of
-    it, or frozen; in sub-steps those that can touch within the sub-step, ``st.live_order``): pair contact with its
+    it, or frozen; in sub-steps those that can touch within the sub-step, ``isl_info.live``): pair contact with its
     frozen friction, the four blocks of the matrix where j moves."""
-    k = wp.tid()  # slot k of the pairs ordered by island: island isl's evaluated pairs are the first
-    if k >= st.pair_start[st.pair_start.shape[0] - 1]:  # past the step's pairs (launched over the buffers' capacity)
-        return
-    isl = isl_info.object_island[st.obj_i[st.pair_order[k]]]  # live_count[isl] of its slots (all of them outside sub-steps)
+    k = wp.tid()  # slot k of the pairs ordered by island
+    if k >= st.pair_start[st.pair_start.shape[0] - 1] or isl_info.live[k] == 0:  # (past the step's pairs: a graph's
+        return  # launch has a power of two of threads)
+    p = st.pair_order[k]
+    isl = isl_info.object_island[st.obj_i[p]]
     mode = isl_info.mode[isl]
-    if mode == NOTHING or k >= st.pair_start[isl] + st.live_count[isl]:
+    if mode == NOTHING:
         return
-    p = st.live_order[k]
     if _pair_out_of_reach(bd, st, p):
         return
     active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, wk.tm, p)
@@ -574,17 +578,73 @@ def clear_iterating_kernel(isl_info: Island):
 
 
 @wp.kernel
-def substep_start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps, isl_info: Island,
-                         threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64), j: int):  # fmt: skip
-    """Island ``isl``'s sub-step ``j`` (if it has one and none of its earlier ones was handed back): its start data
-    from the current states (:func:`data_gen.sim.fused_newton._substep_start`: scene margins, the pairs that can
-    touch within it), its limits, q at the predicted states, cleared counters, phase EVALUATE; else DONE."""
+def all_live_kernel(isl_info: Island):
+    """Slot k of the pairs: evaluated (outside sub-steps every candidate pair is)."""
+    isl_info.live[wp.tid()] = 1
+
+
+# A step's sub-steps on the device: the fused kernel's per-island sub-step (data_gen.sim.fused_newton.substeps_kernel)
+# cut into launches with a thread per object, sphere and pair (through the same functions, on the same values), so
+# that no thread walks an island's spheres or pairs: on a GPU one thread doing that costs more than the solve.
+
+
+@wp.kernel
+def substep_begin_kernel(ss: Substeps, isl_info: Island, j: int):
+    """Island ``isl``: EVALUATE if it has a sub-step ``j`` and none of its earlier ones was handed back, else
+    DONE; nothing to evaluate yet (the start data follow)."""
     isl = wp.tid()
     isl_info.mode[isl] = NOTHING
     if j >= ss.num_sub[isl] or isl_info.halted[isl] != 0:
         isl_info.phase[isl] = DONE
+    else:
+        isl_info.phase[isl] = EVALUATE
+
+
+@wp.kernel
+def substep_objects_kernel(bd: Bodies, st: StepData, ss: Substeps, isl_info: Island):
+    """Object o of an island starting a sub-step: its start states (the current ones) and predicted states."""
+    o = wp.tid()
+    isl = isl_info.object_island[o]
+    if isl_info.phase[isl] != EVALUATE:
         return
-    _substep_start(bd, sc, st, ss, isl)
+    h = ss.h[isl]
+    for r in range(3):
+        for a in range(bd.columns[o]):
+            st.tm_start[o, r, a] = ss.tm_now[o, r, a]
+            st.tm_pred[o, r, a] = ss.tm_now[o, r, a] + h * ss.tmdot[o, r, a]
+
+
+@wp.kernel
+def substep_spheres_kernel(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl_info: Island):
+    """Sphere s of object o of an island starting a sub-step: its start data
+    (:func:`data_gen.sim.fused_newton.sphere_start`)."""
+    o, s = wp.tid()
+    if isl_info.phase[isl_info.object_island[o]] != EVALUATE:
+        return
+    sphere_start(bd, sc, st, ss, o, s, bd.columns[o])
+
+
+@wp.kernel
+def substep_pairs_kernel(st: StepData, ss: Substeps, isl_info: Island):
+    """Slot k of the pairs, of an island starting a sub-step: whether its pair can touch within the sub-step
+    (``isl_info.live``) and then its start data (:func:`data_gen.sim.fused_newton.pair_start_live`)."""
+    k = wp.tid()
+    if k >= st.pair_start[st.pair_start.shape[0] - 1]:
+        return
+    p = st.pair_order[k]
+    isl = isl_info.object_island[st.obj_i[p]]
+    if isl_info.phase[isl] != EVALUATE:
+        return
+    isl_info.live[k] = pair_start_live(st, ss, p, ss.h[isl])
+
+
+@wp.kernel
+def substep_ready_kernel(bd: Bodies, st: StepData, wk: Work, ss: Substeps, isl_info: Island,
+                         threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64)):  # fmt: skip
+    """Island ``isl`` starting a sub-step: its limits, q at the predicted states, cleared counters."""
+    isl = wp.tid()
+    if isl_info.phase[isl] != EVALUATE:
+        return
     thr, trust = _step_limits(bd, st, isl, ss.tolerance, ss.gravity_norm)
     threshold[isl] = thr
     trust_m[isl] = trust
@@ -596,15 +656,14 @@ def substep_start_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: 
                 wk.q[bd.flat_index[o, r * kp + a]] = st.tm_pred[o, r, a]
     for k in range(NUM_STATS):
         wk.stats[isl, k] = 0
-    isl_info.phase[isl] = EVALUATE
 
 
 @wp.kernel
-def substep_end_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps, isl_info: Island, j: int):
+def substep_finish_kernel(bd: Bodies, wk: Work, ss: Substeps, isl_info: Island, j: int):
     """After island ``isl``'s sub-step ``j``: its counters into row j; a hand-back halts the island; else its
-    contact forces (and their sums) into row j and the states and rates advanced, as
-    :func:`data_gen.sim.fused_newton.substeps_kernel` does."""
+    result loaded as the states its forces are recorded at (mode VALUE)."""
     isl = wp.tid()
+    isl_info.mode[isl] = NOTHING
     if j >= ss.num_sub[isl] or isl_info.halted[isl] != 0:
         return
     for k in range(NUM_STATS):
@@ -612,16 +671,77 @@ def substep_end_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Su
     if wk.stats[isl, STATUS] != SOLVED:
         isl_info.halted[isl] = 1
         return
-    _final_forces(bd, sc, st, wk, isl, ss.forces, j)  # (loads q into wk.tm)
-    if ss.with_sums != 0:
-        _force_sums(bd, st, ss, isl, j)
+    _load_state(bd, wk.q, wk.tm, isl)
+    isl_info.mode[isl] = VALUE
+
+
+@wp.kernel
+def substep_object_end_kernel(bd: Bodies, st: StepData, wk: Work, ss: Substeps, isl_info: Island):
+    """Object o of an island whose sub-step was solved: its motion bound at the result, and its states and rates
+    advanced to the result."""
+    o = wp.tid()
+    isl = isl_info.object_island[o]
+    if isl_info.mode[isl] == NOTHING:
+        return
+    cols = bd.columns[o]
+    st.moved[o] = _motion_bound(bd, st, wk.tm, o, cols)
     h = ss.h[isl]
-    for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
-        o = bd.island_objects[slot]
-        for r in range(3):
-            for a in range(bd.columns[o]):
-                ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / h
-                ss.tm_now[o, r, a] = wk.tm[o, r, a]
+    for r in range(3):
+        for a in range(cols):
+            ss.tmdot[o, r, a] = (wk.tm[o, r, a] - st.tm_start[o, r, a]) / h
+            ss.tm_now[o, r, a] = wk.tm[o, r, a]
+
+
+@wp.kernel
+def substep_sphere_forces_kernel(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, ss: Substeps,
+                                 isl_info: Island, j: int):  # fmt: skip
+    """Sphere s of object o of an island whose sub-step was solved: its position, scene force and normal into
+    row j (:func:`data_gen.sim.fused_newton.sphere_force`)."""
+    o, s = wp.tid()
+    if isl_info.mode[isl_info.object_island[o]] == NOTHING:
+        return
+    out = ss.forces
+    sphere_force(bd, sc, st, wk.tm, o, s, bd.columns[o], st.moved[o], out.sphere_x[j], out.scene_force[j],
+                 out.scene_normal[j])  # fmt: skip
+
+
+@wp.kernel
+def substep_pair_forces_kernel(bd: Bodies, st: StepData, wk: Work, ss: Substeps, isl_info: Island, j: int):
+    """Slot k of the pairs, of an island whose sub-step was solved: its pair's force and normal into row j, zero
+    unless it is live and touches (:func:`data_gen.sim.fused_newton.live_pair_force`)."""
+    k = wp.tid()
+    if k >= st.pair_start[st.pair_start.shape[0] - 1]:
+        return
+    p = st.pair_order[k]
+    if isl_info.mode[isl_info.object_island[st.obj_i[p]]] == NOTHING:
+        return
+    out = ss.forces
+    out.pair_force[j, p] = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    out.pair_normal[j, p] = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    if isl_info.live[k] != 0:
+        live_pair_force(bd, st, wk.tm, p, out.pair_force[j], out.pair_normal[j])
+
+
+@wp.kernel
+def substep_object_sums_kernel(ss: Substeps, isl_info: Island, j: int):
+    """Object o of an island whose sub-step was solved: row j of its scene force sums."""
+    o = wp.tid()
+    if isl_info.mode[isl_info.object_island[o]] == NOTHING:
+        return
+    object_scene_sums(ss, o, j)
+
+
+@wp.kernel
+def substep_pair_sums_kernel(st: StepData, ss: Substeps, isl_info: Island, j: int):
+    """Slot k of the pairs, of an island whose sub-step was solved: its live pair's force added to row j of its
+    group's sums (atomically: a group's pairs are slots of one island, added in slot order on the CPU)."""
+    k = wp.tid()
+    if k >= st.pair_start[st.pair_start.shape[0] - 1] or isl_info.live[k] == 0:
+        return
+    p = st.pair_order[k]
+    if isl_info.mode[isl_info.object_island[st.obj_i[p]]] == NOTHING:
+        return
+    add_pair_sums(st, ss, p, j)
 
 
 _WORK_INPUTS = frozenset({"q"})
@@ -729,17 +849,18 @@ class DeviceNewton:
         self._first_block: wp.array | None = None  # (n_isl, blocks) the blocked factorisation's envelope
 
     def _island_info(self) -> Island:
-        """The per-island arrays for the fused workspace's grouping now (remade when it changed), on this
-        solver's device."""
+        """The per-island arrays for the fused workspace's grouping and pair capacity now (remade when either
+        changed), on this solver's device."""
         f = self.fused
         n_isl = f.shape[0]
-        key = f.layout_version
+        capacity = len(f.pair_order)
+        key = (f.layout_version, capacity)
         if self._info is not None and self._info_key == key:
             return self._info
         info = Island()
         for name in Island.vars:
             dtype = wp.float64 if name in ("value", "total", "alpha", "slope", "mass", "ridge", "biggest") else wp.int32
-            count = 1 if name in ("iterating", "searching") else n_isl
+            count = 1 if name in ("iterating", "searching") else capacity if name == "live" else n_isl
             if name != "object_island":
                 setattr(info, name, wp.zeros(count, dtype=dtype, device=self.device))
         info.object_island = wp.array(f.island_of.to(torch.int32).cpu().numpy(), dtype=wp.int32, device=self.device)
@@ -801,6 +922,8 @@ class DeviceNewton:
             wp.float64(f._gravity_norm),
         ])  # fmt: skip
         wp.launch(margins_kernel, dim=(n, num_spheres), device=self.device, inputs=[bd, sc, st])
+        if st.num_pairs:
+            wp.launch(all_live_kernel, dim=_pair_threads(st, self.graph), device=self.device, inputs=[info])
 
     def _factor_blocked(self, bd: Bodies, wk: Work, info: Island) -> None:
         """The update ``dq`` of every island in EVALUATE or HAVE by the blocked factorisation inside its matrix's
@@ -944,10 +1067,12 @@ class DeviceNewton:
                        pair_group: np.ndarray | None = None) -> SubstepResult | None:  # fmt: skip
         """What :meth:`FusedNewton.solve_substeps` returns for the same arguments (to round-off): every island's
         sub-steps, each one's start data computed on the device from the previous one's result
-        (:func:`substep_start_kernel`), solved by the schedule, its forces and sums recorded
-        (:func:`substep_end_kernel`): a step of one-handle islands without the host between its sub-steps."""
+        (:func:`substep_begin_kernel` to :func:`substep_ready_kernel`), solved by the schedule, its forces and sums
+        recorded (:func:`substep_finish_kernel` to :func:`substep_pair_sums_kernel`): a step of one-handle islands
+        without the host between its sub-steps, and no thread walking an island's spheres or pairs."""
         f = self.fused
         n_isl = f.shape[0]
+        n, num_spheres = f._keep["radius"].shape
         st_host, ss_host, count_max, count, num_pairs, groups = f.prepare_substeps(
             tm, tmdot, h_s, num_sub, gravity_m_s2, settings, scene_stiffness_n_m, smoothing_m, pairs, pair_mu,
             pair_margin_m, pair_group,
@@ -959,14 +1084,31 @@ class DeviceNewton:
         iteration = self._iteration(bd, sc, st, wk, info, threshold, trust, settings)
         device = self.device
 
+        pair_threads = _pair_threads(st, self.graph)
+        sums = ss_host.with_sums != 0
+
         def schedule() -> None:
             for j in range(count_max):
                 wp.launch(clear_iterating_kernel, dim=1, device=device, inputs=[info])
-                wp.launch(substep_start_kernel, dim=n_isl, device=device,
-                          inputs=[bd, sc, st, wk, ss, info, threshold, trust, j])  # fmt: skip
+                wp.launch(substep_begin_kernel, dim=n_isl, device=device, inputs=[ss, info, j])
+                wp.launch(substep_objects_kernel, dim=n, device=device, inputs=[bd, st, ss, info])
+                wp.launch(substep_spheres_kernel, dim=(n, num_spheres), device=device, inputs=[bd, sc, st, ss, info])
+                if pair_threads:
+                    wp.launch(substep_pairs_kernel, dim=pair_threads, device=device, inputs=[st, ss, info])
+                wp.launch(substep_ready_kernel, dim=n_isl, device=device, inputs=[bd, st, wk, ss, info, threshold, trust])
                 wp.launch(iterating_kernel, dim=n_isl, device=device, inputs=[info])
                 wp.capture_while(info.iterating, iteration)
-                wp.launch(substep_end_kernel, dim=n_isl, device=device, inputs=[bd, sc, st, wk, ss, info, j])
+                wp.launch(substep_finish_kernel, dim=n_isl, device=device, inputs=[bd, wk, ss, info, j])
+                wp.launch(substep_object_end_kernel, dim=n, device=device, inputs=[bd, st, wk, ss, info])
+                wp.launch(substep_sphere_forces_kernel, dim=(n, num_spheres), device=device,
+                          inputs=[bd, sc, st, wk, ss, info, j])  # fmt: skip
+                if pair_threads:
+                    wp.launch(substep_pair_forces_kernel, dim=pair_threads, device=device,
+                              inputs=[bd, st, wk, ss, info, j])  # fmt: skip
+                if sums:
+                    wp.launch(substep_object_sums_kernel, dim=n, device=device, inputs=[ss, info, j])
+                    if pair_threads:
+                        wp.launch(substep_pair_sums_kernel, dim=pair_threads, device=device, inputs=[st, ss, info, j])
 
         t0 = time.perf_counter()
         self._run(schedule, "substeps", (bd, sc, st, wk, ss, info, threshold, trust), count_max,

@@ -1118,25 +1118,42 @@ def _final_forces(bd: Bodies, sc: SceneArgs, st: StepData, wk: Work, isl: int, o
         moved = _motion_bound(bd, st, tm, o, cols)
         st.moved[o] = moved
         for s in range(bd.radius.shape[1]):
-            sphere_x[o, s] = _sphere_x(bd, tm, o, s, cols)
-            scene_force[o, s] = zero
-            scene_normal[o, s] = zero
-            if st.margin[o, s] <= moved * bd.b_norm[o, s]:
-                active, e, g, h, normal = _scene_sphere(bd, sc, st, tm, o, s, cols)
-                if active != 0:
-                    scene_force[o, s] = -g
-                    scene_normal[o, s] = normal
+            sphere_force(bd, sc, st, tm, o, s, cols, moved, sphere_x, scene_force, scene_normal)
     for k in range(st.pair_start[isl], st.pair_start[isl + 1]):
         pair_force[st.pair_order[k]] = zero
         pair_normal[st.pair_order[k]] = zero
     for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
-        p = st.live_order[k]
-        if _pair_out_of_reach(bd, st, p):
-            continue
-        active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, p)
+        live_pair_force(bd, st, tm, st.live_order[k], pair_force, pair_normal)
+
+
+@wp.func
+def sphere_force(bd: Bodies, sc: SceneArgs, st: StepData, tm: wp.array3d(dtype=wp.float64), o: int, s: int,
+                 cols: int, moved: wp.float64, sphere_x: wp.array2d(dtype=wp.vec3d),
+                 scene_force: wp.array2d(dtype=wp.vec3d), scene_normal: wp.array2d(dtype=wp.vec3d)):  # fmt: skip
+    """Sphere (o, s) at the states ``tm`` (its object's motion bound ``moved`` since the start): its position,
+    scene force and normal (zero where it cannot touch or does not), for :func:`_final_forces`."""
+    zero = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    sphere_x[o, s] = _sphere_x(bd, tm, o, s, cols)
+    scene_force[o, s] = zero
+    scene_normal[o, s] = zero
+    if st.margin[o, s] <= moved * bd.b_norm[o, s]:
+        active, e, g, h, normal = _scene_sphere(bd, sc, st, tm, o, s, cols)
         if active != 0:
-            pair_force[p] = -g
-            pair_normal[p] = normal
+            scene_force[o, s] = -g
+            scene_normal[o, s] = normal
+
+
+@wp.func
+def live_pair_force(bd: Bodies, st: StepData, tm: wp.array3d(dtype=wp.float64), p: int,
+                    pair_force: wp.array(dtype=wp.vec3d), pair_normal: wp.array(dtype=wp.vec3d)):  # fmt: skip
+    """Live pair p at the states ``tm``: its force on side i and normal where it touches (left as they are
+    where it does not: :func:`_final_forces` zeroes them first)."""
+    if _pair_out_of_reach(bd, st, p):
+        return
+    active, e, g, h, normal, oi, si, cols_i, oj, sj, cols_j = _pair_at(bd, st, tm, p)
+    if active != 0:
+        pair_force[p] = -g
+        pair_normal[p] = normal
 
 
 @wp.kernel
@@ -1212,57 +1229,73 @@ def _substep_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, isl: i
             for a in range(cols):
                 st.tm_start[o, r, a] = ss.tm_now[o, r, a]
                 st.tm_pred[o, r, a] = ss.tm_now[o, r, a] + h * ss.tmdot[o, r, a]
-        k = ss.scene_stiffness[o]
         for s in range(bd.radius.shape[1]):
-            x = _sphere_x(bd, ss.tm_now, o, s, cols)
-            sdf, n = _scene_distance(sc, x)
-            valid = wp.float64(ss.valid[o, s])
-            depth = wp.max(bd.radius[o, s] - sdf, _ZERO) * valid
-            stiffness = k * valid
-            friction_scale = ss.friction[o] * (k * depth)
-            st.start_x[o, s] = x
-            st.start_speed[o, s] = wp.length(_sphere_v(bd, ss.tmdot, o, s, cols))
-            st.start_normal[o, s] = n
-            st.stiffness[o, s] = stiffness
-            st.friction_scale[o, s] = friction_scale
-            margin = wp.float64(-1.0)  # as _scene_margins, from the same distance
-            if stiffness != _ZERO and friction_scale <= _ZERO:
-                margin = sdf - bd.radius[o, s]
-            st.margin[o, s] = margin
+            sphere_start(bd, sc, st, ss, o, s, cols)
     live = int(0)
-    reach_g = wp.float64(2.0) * ss.gravity_norm * h * h + ss.pair_margin_m
     for m in range(st.pair_start[isl], st.pair_start[isl + 1]):  # each sphere's start position and speed
         p = st.pair_order[m]  # computed once above, read here
-        oi = st.obj_i[p]
-        xi = st.start_x[oi, st.sph_i[p]]
-        speeds = st.start_speed[oi, st.sph_i[p]]
-        oj = st.obj_j[p]
-        xj = wp.vec3d(_ZERO, _ZERO, _ZERO)
-        if oj >= 0:
-            xj = st.start_x[oj, st.sph_j[p]]
-            speeds = speeds + st.start_speed[oj, st.sph_j[p]]
-        else:
-            xj = st.frozen_x_j[p]
-        delta = xi - xj
-        reach = wp.float64(1.5) * h * speeds + reach_g
-        far = (st.radius_sum[p] + reach) * wp.float64(1.000000001)
-        if wp.dot(delta, delta) >= far * far:
-            continue  # beyond the test below with room for round-off: the same decision without a square root
-        dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
-        if dist - st.radius_sum[p] >= reach:
-            continue  # cannot touch within the sub-step
-        st.live_order[st.pair_start[isl] + live] = p
-        live = live + 1
-        lam = st.pair_stiffness[p] * wp.max(st.radius_sum[p] - dist, _ZERO)
-        st.x0_i[p] = xi
-        st.x0_j[p] = xj
-        st.normal0[p] = delta / dist
-        mu_lam = _ZERO
-        if lam > _ZERO:
-            mu_lam = ss.pair_mu[p] * lam
-        st.pair_friction_scale[p] = mu_lam
-        st.pair_gap[p] = dist - st.radius_sum[p]  # < 0 for a pair with a frozen friction force (lam > 0)
+        if pair_start_live(st, ss, p, h) != 0:
+            st.live_order[st.pair_start[isl] + live] = p
+            live = live + 1
     st.live_count[isl] = live
+
+
+@wp.func
+def sphere_start(bd: Bodies, sc: SceneArgs, st: StepData, ss: Substeps, o: int, s: int, cols: int):
+    """Sphere (o, s)'s start data for a sub-step from the current states (:func:`_substep_start`): position,
+    speed, scene normal, stiffness, frozen ``mu k depth`` and scene margin."""
+    k = ss.scene_stiffness[o]
+    x = _sphere_x(bd, ss.tm_now, o, s, cols)
+    sdf, n = _scene_distance(sc, x)
+    valid = wp.float64(ss.valid[o, s])
+    depth = wp.max(bd.radius[o, s] - sdf, _ZERO) * valid
+    stiffness = k * valid
+    friction_scale = ss.friction[o] * (k * depth)
+    st.start_x[o, s] = x
+    st.start_speed[o, s] = wp.length(_sphere_v(bd, ss.tmdot, o, s, cols))
+    st.start_normal[o, s] = n
+    st.stiffness[o, s] = stiffness
+    st.friction_scale[o, s] = friction_scale
+    margin = wp.float64(-1.0)  # as _scene_margins, from the same distance
+    if stiffness != _ZERO and friction_scale <= _ZERO:
+        margin = sdf - bd.radius[o, s]
+    st.margin[o, s] = margin
+
+
+@wp.func
+def pair_start_live(st: StepData, ss: Substeps, p: int, h: wp.float64):
+    """Pair p's start data for a sub-step of ``h`` s (:func:`_substep_start`), from its spheres' start
+    positions and speeds: 1 where it can touch within the sub-step (and then its start positions, normal
+    j -> i, frozen ``mu lam`` and start gap), else 0 (nothing written)."""
+    reach_g = wp.float64(2.0) * ss.gravity_norm * h * h + ss.pair_margin_m
+    oi = st.obj_i[p]
+    xi = st.start_x[oi, st.sph_i[p]]
+    speeds = st.start_speed[oi, st.sph_i[p]]
+    oj = st.obj_j[p]
+    xj = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    if oj >= 0:
+        xj = st.start_x[oj, st.sph_j[p]]
+        speeds = speeds + st.start_speed[oj, st.sph_j[p]]
+    else:
+        xj = st.frozen_x_j[p]
+    delta = xi - xj
+    reach = wp.float64(1.5) * h * speeds + reach_g
+    far = (st.radius_sum[p] + reach) * wp.float64(1.000000001)
+    if wp.dot(delta, delta) >= far * far:
+        return 0  # beyond the test below with room for round-off: the same decision without a square root
+    dist = wp.max(wp.length(delta), wp.float64(1.0e-12))
+    if dist - st.radius_sum[p] >= reach:
+        return 0  # cannot touch within the sub-step
+    lam = st.pair_stiffness[p] * wp.max(st.radius_sum[p] - dist, _ZERO)
+    st.x0_i[p] = xi
+    st.x0_j[p] = xj
+    st.normal0[p] = delta / dist
+    mu_lam = _ZERO
+    if lam > _ZERO:
+        mu_lam = ss.pair_mu[p] * lam
+    st.pair_friction_scale[p] = mu_lam
+    st.pair_gap[p] = dist - st.radius_sum[p]  # < 0 for a pair with a frozen friction force (lam > 0)
+    return 1
 
 
 # per-object and per-object-pair sums of a sub-step's contact forces (what a step's statistics are made of)
@@ -1276,47 +1309,59 @@ def _force_sums(bd: Bodies, st: StepData, ss: Substeps, isl: int, j: int):
     (N); per group of pairs (``ss.pair_group``: one object pair's candidates, all on this island's side i), over
     its pairs with a force in row order, the force on side i, |f| (x_i + x_j) / 2, |f| n (n from j to i) and
     |f|."""
-    forces = ss.forces
     for slot in range(bd.object_start[isl], bd.object_start[isl + 1]):
-        o = bd.island_objects[slot]
-        total = wp.vec3d(_ZERO, _ZERO, _ZERO)
-        moment = wp.vec3d(_ZERO, _ZERO, _ZERO)
-        normal = wp.vec3d(_ZERO, _ZERO, _ZERO)
-        weight = _ZERO
-        for s in range(ss.valid.shape[1]):
-            f = forces.scene_force[j, o, s]
-            # most spheres carry no force: adding their zeros would leave every sum as it is (each starts at +0,
-            # and a sum of nonzero terms is never -0), so they are skipped before the square root and the reads
-            if ss.valid[o, s] != 0 and (f[0] != _ZERO or f[1] != _ZERO or f[2] != _ZERO):
-                m = wp.length(f)
-                total = total + f
-                moment = moment + m * forces.sphere_x[j, o, s]
-                normal = normal + m * forces.scene_normal[j, o, s]
-                weight = weight + m
-        for r in range(3):
-            ss.scene_sums[j, o, r] = total[r]
-            ss.scene_sums[j, o, 3 + r] = moment[r]
-            ss.scene_sums[j, o, 6 + r] = normal[r]
-        ss.scene_sums[j, o, 9] = weight
+        object_scene_sums(ss, bd.island_objects[slot], j)
     # the island's pairs with a force, in row order: live ones only (_final_forces leaves the others at zero);
     # the group sums start at zero (FusedNewton.solve_substeps clears them before the launch)
     for k in range(st.pair_start[isl], st.pair_start[isl] + st.live_count[isl]):
-        p = st.live_order[k]
-        f = forces.pair_force[j, p]
-        m = wp.length(f)
-        g = ss.pair_group[p]
-        if m > _ZERO and g >= 0:
-            x_i = forces.sphere_x[j, st.obj_i[p], st.sph_i[p]]
-            x_j = st.frozen_x_j[p]
-            if st.obj_j[p] >= 0:
-                x_j = forces.sphere_x[j, st.obj_j[p], st.sph_j[p]]
-            middle = (m * wp.float64(0.5)) * (x_i + x_j)
-            n_m = m * forces.pair_normal[j, p]
-            for r in range(3):
-                ss.pair_sums[j, g, r] = ss.pair_sums[j, g, r] + f[r]
-                ss.pair_sums[j, g, 3 + r] = ss.pair_sums[j, g, 3 + r] + middle[r]
-                ss.pair_sums[j, g, 6 + r] = ss.pair_sums[j, g, 6 + r] + n_m[r]
-            ss.pair_sums[j, g, 9] = ss.pair_sums[j, g, 9] + m
+        add_pair_sums(st, ss, st.live_order[k], j)
+
+
+@wp.func
+def object_scene_sums(ss: Substeps, o: int, j: int):
+    """Row ``j`` of object o's scene force sums (:func:`_force_sums`), over its real spheres in order."""
+    forces = ss.forces
+    total = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    moment = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    normal = wp.vec3d(_ZERO, _ZERO, _ZERO)
+    weight = _ZERO
+    for s in range(ss.valid.shape[1]):
+        f = forces.scene_force[j, o, s]
+        # most spheres carry no force: adding their zeros would leave every sum as it is (each starts at +0,
+        # and a sum of nonzero terms is never -0), so they are skipped before the square root and the reads
+        if ss.valid[o, s] != 0 and (f[0] != _ZERO or f[1] != _ZERO or f[2] != _ZERO):
+            m = wp.length(f)
+            total = total + f
+            moment = moment + m * forces.sphere_x[j, o, s]
+            normal = normal + m * forces.scene_normal[j, o, s]
+            weight = weight + m
+    for r in range(3):
+        ss.scene_sums[j, o, r] = total[r]
+        ss.scene_sums[j, o, 3 + r] = moment[r]
+        ss.scene_sums[j, o, 6 + r] = normal[r]
+    ss.scene_sums[j, o, 9] = weight
+
+
+@wp.func
+def add_pair_sums(st: StepData, ss: Substeps, p: int, j: int):
+    """Live pair p's force, if any, added to row ``j`` of its group's sums (:func:`_force_sums`), atomically
+    (one thread adding: the plain sums; several: their order is the adds')."""
+    forces = ss.forces
+    f = forces.pair_force[j, p]
+    m = wp.length(f)
+    g = ss.pair_group[p]
+    if m > _ZERO and g >= 0:
+        x_i = forces.sphere_x[j, st.obj_i[p], st.sph_i[p]]
+        x_j = st.frozen_x_j[p]
+        if st.obj_j[p] >= 0:
+            x_j = forces.sphere_x[j, st.obj_j[p], st.sph_j[p]]
+        middle = (m * wp.float64(0.5)) * (x_i + x_j)
+        n_m = m * forces.pair_normal[j, p]
+        for r in range(3):
+            wp.atomic_add(ss.pair_sums, j, g, r, f[r])
+            wp.atomic_add(ss.pair_sums, j, g, 3 + r, middle[r])
+            wp.atomic_add(ss.pair_sums, j, g, 6 + r, n_m[r])
+        wp.atomic_add(ss.pair_sums, j, g, 9, m)
 
 
 @wp.kernel
