@@ -328,6 +328,13 @@ MUTANTS: tuple[Mutant, ...] = (
            "                _pair_threads(structs[2], self.graph))  # fmt: skip",
            "                0)  # fmt: skip",
            tests=("tests/sim/test_sim_device_newton.py::test_the_graph_key_follows_the_pairs_launch",)),
+    Mutant("device_copies_skip_a_substep_input", "data_gen/sim/device_newton.py",
+           '    "start_speed", "start_normal", "live_order", "live_count", "pair_friction_scale", "normal0", "x0_i", "x0_j",\n}',
+           '    "start_speed", "start_normal", "live_order", "live_count", "pair_friction_scale", "normal0", "x0_i", "x0_j",\n'
+           '    "radius_sum",\n}'),
+    Mutant("device_copies_skip_the_pair_rows", "data_gen/sim/device_newton.py",
+           "leading=dict.fromkeys(PAIR_FIELDS, int(st.num_pairs)))",
+           "leading=dict.fromkeys(PAIR_FIELDS, 0))"),
     Mutant("tile_cholesky_lower_blocks_skip_earlier_columns", "data_gen/sim/tile_cholesky.py",
            "                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(-1.0), beta=wp.float64(1.0))",
            "                wp.tile_matmul(lij, wp.tile_transpose(lkj), b, alpha=wp.float64(0.0), beta=wp.float64(1.0))"),

@@ -748,6 +748,21 @@ _WORK_INPUTS = frozenset({"q"})
 """What a solve reads of :class:`Work` before writing it: the start state (the matrices, factors, updates, envelope
 and counters are written first)."""
 
+PAIR_FIELDS = ("pair_gap", "pair_order", "live_order", "obj_i", "sph_i", "obj_j", "sph_j", "frozen_x_j",
+               "pair_stiffness", "radius_sum", "pair_friction_scale", "normal0", "x0_i", "x0_j")  # fmt: skip
+""":class:`StepData`'s arrays over the pair buffers' capacity: only their first ``num_pairs`` rows are in use."""
+
+_SUBSTEP_STEP_INPUTS = frozenset(StepData.vars) - {
+    "tm_pred", "tm_pred4", "tm_start", "margin", "pair_gap", "moved", "stiffness", "friction_scale", "start_x",
+    "start_speed", "start_normal", "live_order", "live_count", "pair_friction_scale", "normal0", "x0_i", "x0_j",
+}  # fmt: skip
+"""What the sub-step schedule reads of :class:`StepData` from the host: the rest is the start data its launches
+compute at each sub-step before reading it (states, sphere and pair start data, margins, motion bounds)."""
+
+_SUBSTEP_INPUTS = frozenset(Substeps.vars) - {"forces", "scene_sums"}
+"""What the sub-step schedule reads of :class:`Substeps` from the host: not its outputs (the forces and the scene
+sums are written for every entry a caller reads; the counters and the pair sums start at the host's zeros)."""
+
 
 class StructMirror:
     """Copies, on another warp device, of the arrays a warp struct instance holds: allocated at first use (again
@@ -758,17 +773,19 @@ class StructMirror:
         self.device = wp.get_device(device)
         self._buffers: dict[str, wp.array] = {}
 
-    def copy(self, tag: str, source, struct_type, refresh: bool | frozenset[str] = True):
+    def copy(self, tag: str, source, struct_type, refresh: bool | frozenset[str] = True,
+             leading: dict[str, int] | None = None):  # fmt: skip
         """A ``struct_type`` instance whose arrays are this device's copies of ``source``'s (filled from them with
         ``refresh``, or only those named in it; the others only allocated: scratch the launches write first) and
-        whose other fields are ``source``'s. ``tag`` names the source."""
+        whose other fields are ``source``'s. ``tag`` names the source. ``leading`` names arrays of which only
+        their first rows are filled (the rows in use: a pair buffer's first ``num_pairs`` of its capacity)."""
         out = struct_type()
         by_address: dict[int, wp.array] = {}
         for name in struct_type.vars:
             value = getattr(source, name)
             var_type = struct_type.vars[name].type
             if isinstance(var_type, type(struct_type)):  # a struct inside: copied the same way
-                setattr(out, name, self.copy(f"{tag}.{name}", value, var_type, refresh))
+                setattr(out, name, self.copy(f"{tag}.{name}", value, var_type, refresh, leading))
                 continue
             if not isinstance(value, wp.array):
                 setattr(out, name, value)
@@ -778,21 +795,34 @@ class StructMirror:
                 setattr(out, name, wp.array(ptr=shared.ptr, dtype=value.dtype, shape=value.shape,
                                             strides=value.strides, device=self.device))  # fmt: skip
                 continue
-            buffer = self.array(f"{tag}.{name}", value, refresh if isinstance(refresh, bool) else name in refresh)
+            buffer = self.array(f"{tag}.{name}", value, refresh if isinstance(refresh, bool) else name in refresh,
+                                (leading or {}).get(name))  # fmt: skip
             if value.ptr:
                 by_address[value.ptr] = buffer
             setattr(out, name, buffer)
         return out
 
-    def array(self, tag: str, value: wp.array, refresh: bool = True) -> wp.array:
+    def array(self, tag: str, value: wp.array, refresh: bool = True, rows: int | None = None) -> wp.array:
         """This device's copy of the array ``value`` (named ``tag``), allocated at first use or when its shape or
-        type changes, filled from it with ``refresh``."""
+        type changes, filled from it with ``refresh`` (its first ``rows`` rows only, if given)."""
         buffer = self._buffers.get(tag)
         if buffer is None or buffer.shape != value.shape or buffer.dtype != value.dtype:
             buffer = self._buffers[tag] = wp.empty(value.shape, dtype=value.dtype, device=self.device)
         if refresh and value.size:
-            wp.copy(buffer, value)
+            copy_rows(buffer, value, rows)
         return buffer
+
+
+def copy_rows(dst: wp.array, src: wp.array, rows: int | None = None, row: int = 0) -> None:
+    """``src``'s rows ``row .. row + rows`` (its first axis; all of them without ``rows``) into the same rows of
+    ``dst`` (contiguous arrays of one shape): one copy, of what is in use only."""
+    if rows is None:
+        wp.copy(dst, src)
+        return
+    per_row = src.size // src.shape[0] if src.shape[0] else 0
+    count = max(0, min(rows, src.shape[0] - row)) * per_row
+    if count:
+        wp.copy(dst, src, dest_offset=row * per_row, src_offset=row * per_row, count=count)
 
 
 class DeviceNewton:
@@ -867,9 +897,11 @@ class DeviceNewton:
         self._info, self._info_key = info, key
         return info
 
-    def _structs(self, st: StepData) -> tuple[Bodies, SceneArgs, StepData, Work, wp.array, wp.array]:
+    def _structs(self, st: StepData, step_inputs: bool | frozenset[str] = True
+                 ) -> tuple[Bodies, SceneArgs, StepData, Work, wp.array, wp.array]:  # fmt: skip
         """(bodies, scene, step data, work, threshold, trust) on this solver's device: the fused workspace's own,
-        or copies of them (the model's once per grouping, the step's and the work's at every solve)."""
+        or copies of them (the model's once per grouping, the step's and the work's at every solve: of the step
+        data ``step_inputs`` and of its pair arrays their rows in use)."""
         f = self.fused
         threshold, trust = f._limits
         if self.mirror is None:
@@ -881,7 +913,7 @@ class DeviceNewton:
             self._bodies_key = key
         if self._scene is None:
             self._scene = scene_args(f.contact.scene, self.device.alias)
-        step = m.copy("step", st, StepData)
+        step = m.copy("step", st, StepData, refresh=step_inputs, leading=dict.fromkeys(PAIR_FIELDS, int(st.num_pairs)))
         work = m.copy("work", f.work, Work, refresh=_WORK_INPUTS)
         return self._bodies, self._scene, step, work, m.array("threshold", threshold), m.array("trust", trust)
 
@@ -1077,8 +1109,12 @@ class DeviceNewton:
             tm, tmdot, h_s, num_sub, gravity_m_s2, settings, scene_stiffness_n_m, smoothing_m, pairs, pair_mu,
             pair_margin_m, pair_group,
         )  # fmt: skip
-        bd, sc, st, wk, threshold, trust = self._structs(st_host)
-        ss = self.mirror.copy("substeps", ss_host, Substeps) if self.mirror is not None else ss_host
+        bd, sc, st, wk, threshold, trust = self._structs(st_host, _SUBSTEP_STEP_INPUTS)
+        ss = ss_host
+        if self.mirror is not None:  # (of the counters and pair sums, the rows of this step's sub-steps)
+            ss = self.mirror.copy("substeps", ss_host, Substeps, refresh=_SUBSTEP_INPUTS,
+                                  leading={"stats": count_max, "pair_sums": count_max, "pair_mu": num_pairs,
+                                           "pair_group": num_pairs})  # fmt: skip
         info = self._island_info()
         info.halted.zero_()
         iteration = self._iteration(bd, sc, st, wk, info, threshold, trust, settings)
@@ -1113,11 +1149,16 @@ class DeviceNewton:
         t0 = time.perf_counter()
         self._run(schedule, "substeps", (bd, sc, st, wk, ss, info, threshold, trust), count_max,
                   int(settings.iterations), int(settings.line_search_steps))  # fmt: skip
-        if self.mirror is not None:  # what substep_result reads
-            for name in ("tm_now", "tmdot", "stats", "scene_sums", "pair_sums"):
+        if self.mirror is not None:  # what substep_result reads: this step's sub-steps' rows, its pairs' entries
+            for name in ("tm_now", "tmdot"):
                 wp.copy(getattr(ss_host, name), getattr(ss, name))
-            for name in ("sphere_x", "scene_force", "scene_normal", "pair_force", "pair_normal"):
-                wp.copy(getattr(ss_host.forces, name), getattr(ss.forces, name))
+            for name in ("stats", "scene_sums", "pair_sums"):
+                copy_rows(getattr(ss_host, name), getattr(ss, name), count_max)
+            for name in ("sphere_x", "scene_force", "scene_normal"):
+                copy_rows(getattr(ss_host.forces, name), getattr(ss.forces, name), count_max)
+            for name in ("pair_force", "pair_normal"):
+                for j in range(count_max):
+                    copy_rows(getattr(ss_host.forces, name)[j], getattr(ss.forces, name)[j], num_pairs)
         wp.synchronize_device(device)
         self.timings["device_solve"] += time.perf_counter() - t0
         return f.substep_result(count_max, count, num_pairs, groups, pair_group is not None)

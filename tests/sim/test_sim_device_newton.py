@@ -297,6 +297,24 @@ def test_the_graph_key_follows_the_pairs_launch():
     assert _pair_threads(st, True) == 0
 
 
+def test_copy_rows_copies_the_rows_in_use_only():
+    """The copies next to a GPU move a pair buffer's rows in use, not its capacity: ``copy_rows`` copies rows
+    ``row .. row + rows`` of the first axis (clipped to the array), all of them without ``rows``."""
+    from data_gen.sim.device_newton import copy_rows
+
+    src = wp.array(np.arange(24.0).reshape(4, 2, 3), dtype=wp.float64)
+    for rows, row, want_rows in ((2, 0, [0, 1]), (2, 1, [1, 2]), (9, 2, [2, 3]), (0, 0, []), (None, 0, [0, 1, 2, 3])):
+        dst = wp.full((4, 2, 3), -1.0, dtype=wp.float64)
+        copy_rows(dst, src, rows, row)
+        want = np.full((4, 2, 3), -1.0)
+        want[want_rows] = src.numpy()[want_rows]
+        assert np.array_equal(dst.numpy(), want), (rows, row)
+    vectors = wp.array(np.arange(12.0).reshape(4, 3), dtype=wp.vec3d)
+    dst = wp.zeros(4, dtype=wp.vec3d)
+    copy_rows(dst, vectors, 3)
+    assert np.array_equal(dst.numpy(), np.concatenate([np.arange(9.0).reshape(3, 3), np.zeros((1, 3))]))
+
+
 def test_every_module_variant_the_capture_launches_is_loaded_before_it(monkeypatch):
     """A CUDA graph capture cannot load a module (compiling and loading it synchronises the device), and warp
     compiles a module once per block size: the factorisation's blocks of THREADS are a variant of their module
