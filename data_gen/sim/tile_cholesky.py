@@ -125,23 +125,27 @@ def blocked_cholesky_solve_kernel(
 
 
 @wp.kernel
+def block_envelope_start_kernel(active: wp.array(dtype=wp.int32), first_block: wp.array2d(dtype=wp.int32)):
+    """Block row i of island ``isl`` (``active``): its own block, until its rows find a coupling further left."""
+    isl, i = wp.tid()
+    if active[isl] != 0:
+        first_block[isl, i] = i
+
+
+@wp.kernel
 def block_envelope_kernel(hess: wp.array3d(dtype=wp.float64), active: wp.array(dtype=wp.int32),
                           first_block: wp.array2d(dtype=wp.int32)):  # fmt: skip
-    """Block row i of island ``isl``'s matrix (``active``): the first block column k <= i where ``H + H^T`` has a
-    non-zero entry in rows of block i (i itself when none: the diagonal block is always factorised)."""
-    isl, i = wp.tid()
+    """Row r of island ``isl``'s matrix (``active``): its block row's first block column lowered (atomic min) to
+    that of the row's first column left of its own block where ``H + H^T`` is non-zero. A thread per row, each
+    stopping at its first coupling: no thread walks a block row."""
+    isl, r = wp.tid()
     if active[isl] == 0:
         return
-    n = hess.shape[1]
-    r_end = wp.min((i + 1) * TILE, n)
-    first = i
-    for r in range(i * TILE, r_end):
-        c = int(0)
-        while c < first * TILE:  # only columns left of the first found so far can lower it
-            if hess[isl, r, c] != wp.float64(0.0) or hess[isl, c, r] != wp.float64(0.0):
-                first = c // TILE
-            c += 1
-    first_block[isl, i] = first
+    i = r // TILE
+    for c in range(i * TILE):  # (columns inside its own block cannot lower it)
+        if hess[isl, r, c] != wp.float64(0.0) or hess[isl, c, r] != wp.float64(0.0):
+            wp.atomic_min(first_block, isl, i, c // TILE)
+            return
 
 
 def blocks(size: int) -> int:
@@ -162,8 +166,11 @@ def blocked_cholesky_solve(hess: wp.array, grad: wp.array, ridge: wp.array, acti
 
 
 def block_envelope(hess: wp.array, active: wp.array, first_block: wp.array) -> None:
-    """Launch :func:`block_envelope_kernel`: ``first_block`` (n_isl, :func:`blocks`) of the active islands."""
-    wp.launch(block_envelope_kernel, dim=first_block.shape, inputs=[hess, active, first_block], device=hess.device)
+    """``first_block`` (n_isl, :func:`blocks`) of the active islands: per block row the first block column holding
+    a non-zero of ``H + H^T`` in its rows (its own block when none); :func:`block_envelope_start_kernel`, then
+    :func:`block_envelope_kernel` with a thread per row."""
+    wp.launch(block_envelope_start_kernel, dim=first_block.shape, inputs=[active, first_block], device=hess.device)
+    wp.launch(block_envelope_kernel, dim=hess.shape[:2], inputs=[hess, active, first_block], device=hess.device)
 
 
 __all__ = ["TILE", "THREADS", "block_envelope", "blocked_cholesky_solve", "blocked_cholesky_solve_kernel", "blocks"]
