@@ -1024,16 +1024,16 @@ class DeviceNewton:
             self._first_block = wp.zeros(key, dtype=wp.int32, device=self.device)
         return self._first_block
 
-    def _run(self, schedule, kind: str, structs: tuple, *scalars) -> None:
+    def _run(self, schedule, kind: str, st: StepData, structs: tuple, *scalars) -> None:
         """``schedule()``'s launches, captured as one graph and launched (``graph``), else launched directly; a
-        graph captured for the same launches (``kind``, ``structs`` and ``scalars``: :meth:`_schedule_key`) is
-        launched again instead of capturing. (What the launches need is allocated first: nothing is allocated
-        during a capture.)"""
+        graph captured for the same launches (``kind``, ``st``, ``structs`` and ``scalars``:
+        :meth:`_schedule_key`) is launched again instead of capturing. (What the launches need is allocated
+        first: nothing is allocated during a capture.)"""
         self._first_blocks()
         if not self.graph:
             schedule()
             return
-        key = self._schedule_key(kind, structs, *scalars)
+        key = self._schedule_key(kind, st, structs, *scalars)
         graph = self._graphs.get(key)
         if graph is not None:
             self._graphs.move_to_end(key)
@@ -1059,13 +1059,14 @@ class DeviceNewton:
             self._graphs.popitem(last=False)
         wp.capture_launch(capture.graph)
 
-    def _schedule_key(self, kind: str, structs: tuple, *scalars) -> tuple:
-        """What the launches of a ``kind`` schedule over ``structs`` (its struct and array arguments) depend on:
-        their bytes, the workspace's dimensions, this solver's choices and the schedule's ``scalars``."""
+    def _schedule_key(self, kind: str, st: StepData, structs: tuple, *scalars) -> tuple:
+        """What the launches of a ``kind`` schedule over the step data ``st`` and its other struct and array
+        arguments ``structs`` depend on: their bytes, the workspace's dimensions (the pairs launch's threads among
+        them), this solver's choices and the schedule's ``scalars``."""
         f = self.fused
         dims = (f.shape, tuple(f._keep["cub_volume"].shape), tuple(f._keep["radius"].shape),
-                _pair_threads(structs[2], self.graph))  # fmt: skip
-        return (kind, _launch_bytes(*structs, self._first_block), dims, self.tile_factor, self.clear_entries,
+                _pair_threads(st, self.graph))  # fmt: skip
+        return (kind, _launch_bytes(st, *structs, self._first_block), dims, self.tile_factor, self.clear_entries,
                 float(f._gravity_norm), scalars)  # fmt: skip
 
     def solve(self, objective, q0: torch.Tensor, scale: torch.Tensor | None, trust_m: torch.Tensor | None,
@@ -1084,7 +1085,7 @@ class DeviceNewton:
             wp.capture_while(info.iterating, iteration)
 
         t0 = time.perf_counter()
-        self._run(schedule, "solve", (bd, sc, st, wk, info, threshold, trust), bool(given), float(settings.tolerance),
+        self._run(schedule, "solve", st, (bd, sc, wk, info, threshold, trust), bool(given), float(settings.tolerance),
                   int(settings.iterations), int(settings.line_search_steps))  # fmt: skip
         self._bring_back(st, wk, threshold, trust)
         self.timings["device_solve"] += time.perf_counter() - t0
@@ -1147,7 +1148,7 @@ class DeviceNewton:
                         wp.launch(substep_pair_sums_kernel, dim=pair_threads, device=device, inputs=[st, ss, info, j])
 
         t0 = time.perf_counter()
-        self._run(schedule, "substeps", (bd, sc, st, wk, ss, info, threshold, trust), count_max,
+        self._run(schedule, "substeps", st, (bd, sc, wk, ss, info, threshold, trust), count_max,
                   int(settings.iterations), int(settings.line_search_steps))  # fmt: skip
         if self.mirror is not None:  # what substep_result reads: this step's sub-steps' rows, its pairs' entries
             for name in ("tm_now", "tmdot"):

@@ -283,11 +283,11 @@ def test_the_graph_key_follows_the_pairs_launch():
     solver.solve(objective, q0, None, None, settings)
     st = fused._step
     capacity = st.obj_i.shape[0]
-    structs = (fused.bodies, fused.scene, st, fused.work, solver._island_info(), *fused._limits)
+    structs = (fused.bodies, fused.scene, fused.work, solver._island_info(), *fused._limits)
     keys = {}
     for count in (5, 7, 8, 9, capacity - 1):
         st.num_pairs = count
-        keys[count] = solver._schedule_key("solve", structs, 1)
+        keys[count] = solver._schedule_key("solve", st, structs, 1)
     assert keys[5] == keys[7] == keys[8] != keys[9] != keys[capacity - 1]
     st.num_pairs = 9
     assert (_pair_threads(st, True), _pair_threads(st, False)) == (16, 9)
