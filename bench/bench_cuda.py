@@ -136,6 +136,46 @@ def check_solver(device: str, boxes: int) -> dict:
     return out
 
 
+def profile_device_solver(device: str, boxes: int) -> list[dict]:
+    """The ``bench_peers`` pile of ``boxes`` stiff boxes, 1 s, with its Newton solves on ``device``'s schedule
+    launched directly (no graph: a graph's kernels cannot be timed one by one), every kernel timed: on CUDA its
+    device time (warp's CUDA activity timing), on the CPU the launch's wall time. Rows by total time: kernel,
+    launches, total ms, µs per launch. What dominates a GPU's Newton iteration, measured rather than guessed."""
+    import bench_peers
+    from data_gen.sim.device_newton import DeviceNewton
+
+    scene = bench_peers.PeerScene(f"stiff_{boxes}", boxes, 1e9, "standard")
+    bench_peers.run_newtphys(scene, device=device, device_newton=True)  # (kernels loaded)
+    totals: dict[str, list[float]] = {}
+    previous, DeviceNewton.default_graph = DeviceNewton.default_graph, False
+    launch = wp.launch
+    try:
+        if wp.get_device(device).is_cuda:
+            wp.timing_begin(cuda_filter=wp.TIMING_KERNEL)
+            bench_peers.run_newtphys(scene, device=device, device_newton=True)
+            for r in wp.timing_end():
+                row = totals.setdefault(r.name, [0, 0.0])
+                row[0] += 1
+                row[1] += r.elapsed * 1e-3
+        else:
+            def timed(kernel, *args, **kwargs):
+                t0 = time.perf_counter()
+                out = launch(kernel, *args, **kwargs)
+                row = totals.setdefault(kernel.key, [0, 0.0])
+                row[0] += 1
+                row[1] += time.perf_counter() - t0
+                return out
+
+            wp.launch = timed
+            bench_peers.run_newtphys(scene, device=device, device_newton=True)
+    finally:
+        wp.launch = launch
+        DeviceNewton.default_graph = previous
+    rows = [{"kernel": k, "launches": n, "total_ms": 1e3 * t, "us_per_launch": 1e6 * t / n}
+            for k, (n, t) in totals.items()]  # fmt: skip
+    return sorted(rows, key=lambda r: -r["total_ms"])
+
+
 def _solve_seconds(timings_s: dict) -> str:
     """The Newton solves' seconds, and where a device schedule ran, its part and its captures' part of that."""
     out = f"; Newton {timings_s.get('newton', 0.0):.2f} s"
@@ -446,6 +486,8 @@ def main() -> None:
     ap.add_argument("--sequences", nargs="+", default=["issue", "dataset"], choices=["issue", "dataset"],
                     help="issue: the issue's 10-object / 10^6-splat / 512^2 sequence; dataset: a generation run's "
                     "default sequence at 1000 x 562")  # fmt: skip
+    ap.add_argument("--profile-solver", action="store_true", help="the solver check's pile once more with the "
+                    "device schedule launched directly, every kernel timed (printed and in the JSON)")
     ap.add_argument("--profile-render", action="store_true", help="one more device render under cProfile, written "
                     "to <out>_render_profile.txt")  # fmt: skip
     ap.add_argument("--no-device-solver", action="store_true", help="do not simulate the sequences again with the "
@@ -513,6 +555,15 @@ def main() -> None:
             print(f"[solver] final centres differ by at most {sol['final_com_max_abs_diff_m']:.3g} m "
                   f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
         failures += solver_failures(sol)
+        if args.profile_solver:
+            sol["kernel_profile"] = profile = profile_device_solver(device, args.solver_boxes)
+            save()
+            total = sum(r["total_ms"] for r in profile) or 1.0
+            print(f"[solver] the device schedule's kernels, launched directly ({'device' if 'cuda' in device else 'wall'}"
+                  " time):", flush=True)  # fmt: skip
+            for r in profile[:16]:
+                print(f"[solver]   {r['kernel'][:60]:60s} {r['total_ms']:9.1f} ms {100 * r['total_ms'] / total:5.1f} % "
+                      f"{r['launches']:7d} launches {r['us_per_launch']:9.1f} us each", flush=True)  # fmt: skip
     if "sequence" not in args.skip:
         report["sequences"] = {}
         for spec in sequence_specs(args):

@@ -851,6 +851,10 @@ class DeviceNewton:
     ``device_capture``; ``counters`` (a dict, e.g. the solver's) counts ``device_graphs_captured`` and
     ``device_graphs_reused``."""
 
+    default_graph: bool | None = None
+    """``graph`` where a caller gives none (None: capture on CUDA). ``bench_cuda.py --profile-solver`` sets it
+    False for a run whose kernels are timed one by one (a graph's launches cannot be)."""
+
     def __init__(self, fused: FusedNewton, device=None, graph: bool | None = None, tile_factor: bool | None = None,
                  timings: dict[str, float] | None = None, counters: dict[str, int] | None = None) -> None:  # fmt: skip
         self.fused = fused
@@ -863,7 +867,9 @@ class DeviceNewton:
         self._graphs: OrderedDict[tuple, wp.Graph] = OrderedDict()
         self.mirror = StructMirror(device) if device is not None else None
         self.device = self.mirror.device if self.mirror is not None else wp.get_device(fused.device)
-        self.graph = self.device.is_cuda if graph is None else bool(graph)
+        if graph is None:
+            graph = self.device.is_cuda if DeviceNewton.default_graph is None else DeviceNewton.default_graph
+        self.graph = bool(graph)
         self.tile_factor = self.device.is_cuda if tile_factor is None else bool(tile_factor)
         self.clear_entries = self.device.is_cuda  # the matrices cleared an entry per thread (GPU), else a row
         if self.graph:  # a module cannot be loaded while a graph is captured: every variant launched, here

@@ -50,7 +50,7 @@ def test_grid_comparison_reports_a_last_bit_width_and_fails_a_different_grid(ben
 
 def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
     out = tmp_path / "cuda.json"
-    monkeypatch.setattr(sys, "argv", ["bench_cuda.py", "--device", "cpu", "--quick", "--out", str(out)])
+    monkeypatch.setattr(sys, "argv", ["bench_cuda.py", "--device", "cpu", "--quick", "--profile-solver", "--out", str(out)])
     with pytest.raises(SystemExit) as stop:
         bench_cuda.main()
     assert stop.value.code == 0
@@ -90,6 +90,13 @@ def test_dry_run_on_the_cpu_is_exact(bench_cuda, tmp_path, monkeypatch) -> None:
     assert device["newton_iterations"] == fused["newton_iterations"]
     assert solver["final_com_max_abs_diff_m"] < 1e-9
     assert 0.0 < device["timings_s"]["device_solve"] <= device["timings_s"]["newton"]
+    # every kernel of the schedule timed, launched directly: the Newton loop's and the sub-steps'
+    profile = {row["kernel"]: row for row in solver["kernel_profile"]}
+    for kernel in ("pairs_kernel", "scene_kernel", "direction_kernel", "decide_kernel", "substep_spheres_kernel",
+                   "substep_pair_forces_kernel", "substep_ready_kernel"):  # fmt: skip
+        assert profile[kernel]["launches"] > 0 and profile[kernel]["total_ms"] > 0.0, kernel
+    totals = [row["total_ms"] for row in solver["kernel_profile"]]
+    assert totals == sorted(totals, reverse=True)
     assert "device_solve" not in fused["timings_s"]
     assert not device["checks"]["tunnelled"] and not fused["checks"]["tunnelled"]
 

@@ -315,6 +315,17 @@ def test_copy_rows_copies_the_rows_in_use_only():
     assert np.array_equal(dst.numpy(), np.concatenate([np.arange(9.0).reshape(3, 3), np.zeros((1, 3))]))
 
 
+def test_default_graph_applies_where_no_graph_is_given(monkeypatch):
+    """``DeviceNewton.default_graph`` (what ``bench_cuda.py --profile-solver`` turns off) decides where the caller
+    (the solver) gives no ``graph``; None leaves it to the device (the CPU: no graph); a given one wins."""
+    objective, fused, q0 = _objective(SCENES[0], speed=1.0)
+    assert not DeviceNewton(fused).graph
+    monkeypatch.setattr(DeviceNewton, "default_graph", True)
+    assert DeviceNewton(fused).graph and not DeviceNewton(fused, graph=False).graph
+    monkeypatch.setattr(DeviceNewton, "default_graph", False)
+    assert not DeviceNewton(fused).graph and DeviceNewton(fused, graph=True).graph
+
+
 def test_every_module_variant_the_capture_launches_is_loaded_before_it(monkeypatch):
     """A CUDA graph capture cannot load a module (compiling and loading it synchronises the device), and warp
     compiles a module once per block size: the factorisation's blocks of THREADS are a variant of their module
