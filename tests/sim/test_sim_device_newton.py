@@ -326,6 +326,41 @@ def test_default_graph_applies_where_no_graph_is_given(monkeypatch):
     assert not DeviceNewton(fused).graph and DeviceNewton(fused, graph=True).graph
 
 
+def test_the_gpus_configuration_emulated_on_the_cpu_runs_a_simulation_as_the_fused_kernel(monkeypatch):
+    """Everything a GPU run sets at once, emulated on the CPU: copies of the workspace on another device, the
+    schedule captured as graphs (and launched again), the matrices cleared an entry per thread, the blocked
+    factorisation with 64 lanes per block (warp's CPU fibers). A thrown stack's trajectory stays within 1e-9 m of
+    the fused kernel's, every island solve goes through the schedule, no capture falls back, graphs are reused."""
+    run = DeviceNewton._run
+    fallbacks = []
+
+    def gpu_like(self, schedule, *args):
+        self.clear_entries = True
+        out = run(self, schedule, *args)
+        if not self.graph:
+            fallbacks.append(args[0])
+        return out
+
+    monkeypatch.setattr(DeviceNewton, "_run", gpu_like)
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    _built_as(monkeypatch, "cpu", True, True)
+    emulated = _stack(True, True)
+    fused = _stack(True, False)
+    gap = np.abs(np.stack([t.com_m for t in emulated.objects]) - np.stack([t.com_m for t in fused.objects])).max()
+    assert gap < 1e-9, gap
+    counters = emulated.info.counters
+    assert counters["device_island_solves"] == counters["island_solves"] > 0 and counters["device_handed_back"] == 0
+    assert not fallbacks and counters["device_graphs_reused"] > 0
+    # deformable boxes: their solves (not sub-steps) in the same configuration, against the split solve
+    kwargs = dict(frames=20, handles=2, young_pa=1e5)
+    soft, split = _stack(False, True, **kwargs), _stack(False, False, **kwargs)
+    gap = np.abs(np.stack([t.com_m for t in soft.objects]) - np.stack([t.com_m for t in split.objects])).max()
+    assert gap < 2e-5, gap  # (the in-place schedule's bound: test_deformable_islands_on_the_device_schedule_...)
+    counters = soft.info.counters
+    assert counters["device_island_solves"] == counters["island_solves"] > 0 and counters["device_handed_back"] == 0
+    assert not fallbacks and counters["device_graphs_captured"] > 0
+
+
 def test_every_module_variant_the_capture_launches_is_loaded_before_it(monkeypatch):
     """A CUDA graph capture cannot load a module (compiling and loading it synchronises the device), and warp
     compiles a module once per block size: the factorisation's blocks of THREADS are a variant of their module
