@@ -79,6 +79,7 @@ from data_gen.sim.fused_newton import (
     sphere_margin,
     _step_limits,
     _update_norms,
+    elastic_entry,
     scene_args,
 )
 from data_gen.sim.newton import ARMIJO_C, EXTRA_HALVINGS, NewtonResult, NewtonSettings
@@ -300,11 +301,7 @@ def elastic_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
             wp.atomic_add(wk.grad, fr, w * g_ra)
             for s in range(3):
                 for c in range(cols):
-                    k_v = _ZERO
-                    for j in range(3):
-                        caj = bd.cub_c[o, i, a, j]
-                        for l in range(3):
-                            k_v = k_v + h9[r * 3 + j, s * 3 + l] * caj * bd.cub_c[o, i, c, l]
+                    k_v = elastic_entry(bd, h9, o, i, r, a, s, c)
                     if k_v != _ZERO:
                         fc = bd.flat_index[o, s * kp + c] - isl * n_size
                         wp.atomic_add(wk.hess, fr * n_size + fc, w * k_v)
@@ -1192,11 +1189,12 @@ def _launch_bytes(*values) -> tuple:
     for value in values:
         if isinstance(value, wp.array):
             out.append((value.ptr, value.shape, value.strides, value.dtype))
-        elif isinstance(value, StepData.cls):
-            pairs = value.num_pairs
-            value.num_pairs = 0
-            out.append(bytes(value.__ctype__()))
-            value.num_pairs = pairs
+        elif isinstance(value, StepData.cls):  # its bytes with those of num_pairs zeroed
+            packed = value.__ctype__()
+            field = type(packed).num_pairs
+            raw = bytearray(bytes(packed))
+            raw[field.offset:field.offset + field.size] = bytes(field.size)
+            out.append(bytes(raw))
         else:
             out.append(bytes(value.__ctype__()))
     return tuple(out)

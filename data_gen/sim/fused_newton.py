@@ -205,6 +205,18 @@ def _scene_distance(sc: SceneArgs, x: wp.vec3d):
 
 
 @wp.func
+def elastic_entry(bd: Bodies, h9: mat99d, o: int, i: int, r: int, a: int, s: int, c: int):
+    """Entry ((r, a), (s, c)) of cubature point i's elastic block ``C_i^T H C_i`` (before the weight ``h^2 V``):
+    ``sum_jl H[3r + j, 3s + l] C[a, j] C[c, l]``, summed in that order."""
+    k_v = _ZERO
+    for j in range(3):
+        caj = bd.cub_c[o, i, a, j]
+        for l in range(3):
+            k_v = k_v + h9[r * 3 + j, s * 3 + l] * caj * bd.cub_c[o, i, c, l]
+    return k_v
+
+
+@wp.func
 def sphere_margin(bd: Bodies, sc: SceneArgs, st: StepData, o: int, s: int):
     """How far sphere (o, s)'s start position is from touching the scene (m), or -1 when it carries a frozen
     friction force (always evaluated). The scene distance is 1-Lipschitz, so a sphere whose margin exceeds its
@@ -624,11 +636,7 @@ def _evaluate(
                             base = fr * n_size - isl * n_size
                             for s in range(3):
                                 for c in range(cols):
-                                    k_v = _ZERO
-                                    for j in range(3):
-                                        caj = bd.cub_c[o, i, a, j]
-                                        for l in range(3):
-                                            k_v = k_v + h9[r * 3 + j, s * 3 + l] * caj * bd.cub_c[o, i, c, l]
+                                    k_v = elastic_entry(bd, h9, o, i, r, a, s, c)
                                     fc = bd.flat_index[o, s * kp + c]
                                     hess[base + fc] = hess[base + fc] + w * k_v
         # scene contact + friction of every sphere that may touch the scene
