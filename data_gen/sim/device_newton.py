@@ -91,6 +91,13 @@ logger = logging.getLogger(__name__)
 _ZERO = wp.constant(wp.float64(0.0))
 _ONE = wp.constant(wp.float64(1.0))
 
+CUDA_VALIDATED = False
+"""Whether this schedule has passed ``tests/sim/test_sim_device_newton_cuda.py`` on a CUDA GPU. Not yet: it is
+tested on the CPU only (no GPU was lent since it was written; docs/gpu_checks.md, "The next run"). The session
+that sees that file pass on a GPU sets this True; until then a :class:`DeviceNewton` on CUDA logs a warning."""
+
+_UNVALIDATED_WARNED: set[str] = set()  # the devices warned about in this process
+
 GRAPHS_KEPT = 8
 """Captured schedules a :class:`DeviceNewton` keeps for reuse (a few groupings and pair counts of its workspace)."""
 
@@ -822,6 +829,20 @@ def copy_rows(dst: wp.array, src: wp.array, rows: int | None = None, row: int = 
         wp.copy(dst, src, dest_offset=row * per_row, src_offset=row * per_row, count=count)
 
 
+def warn_if_unvalidated(device) -> bool:
+    """Log, once per device and process, that the schedule has not been validated on CUDA (while
+    :data:`CUDA_VALIDATED` is False) when ``device`` (a warp device) is a CUDA one; True if it logged now."""
+    name = str(device)
+    if CUDA_VALIDATED or not device.is_cuda or name in _UNVALIDATED_WARNED:
+        return False
+    _UNVALIDATED_WARNED.add(name)
+    logger.warning(
+        "DeviceNewton on %s: this schedule has been tested on the CPU only, never on a CUDA GPU; before relying on "
+        "its results there, run `pytest -s tests/sim/test_sim_device_newton_cuda.py` on this machine (it compares "
+        "them with the fused CPU solver; docs/gpu_checks.md)", name)
+    return True
+
+
 class DeviceNewton:
     """:meth:`FusedNewton.solve` as a schedule of launches with a thread per element (see the module docstring),
     on ``fused``'s model, step data and buffers.
@@ -867,6 +888,7 @@ class DeviceNewton:
         if graph is None:
             graph = self.device.is_cuda if DeviceNewton.default_graph is None else DeviceNewton.default_graph
         self.graph = bool(graph)
+        warn_if_unvalidated(self.device)
         self.tile_factor = self.device.is_cuda if tile_factor is None else bool(tile_factor)
         self.clear_entries = self.device.is_cuda  # the matrices cleared an entry per thread (GPU), else a row
         if self.graph:  # a module cannot be loaded while a graph is captured: every variant launched, here

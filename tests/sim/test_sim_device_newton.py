@@ -326,6 +326,38 @@ def test_default_graph_applies_where_no_graph_is_given(monkeypatch):
     assert not DeviceNewton(fused).graph and DeviceNewton(fused, graph=True).graph
 
 
+def test_a_cuda_device_is_warned_about_once_until_the_gpu_test_has_passed(monkeypatch, caplog):
+    """Until ``tests/sim/test_sim_device_newton_cuda.py`` has passed on a GPU (``CUDA_VALIDATED``), a schedule on a
+    CUDA device logs once per device that it is untested there, naming the test to run; a CPU one never does, and
+    neither does any device once it is validated."""
+    from data_gen.sim import device_newton as dn
+
+    monkeypatch.setattr(dn, "_UNVALIDATED_WARNED", set())
+    with caplog.at_level("WARNING", logger=dn.__name__):
+        assert not dn.warn_if_unvalidated(wp.get_device("cpu"))
+        assert [dn.warn_if_unvalidated(d) for d in (_Named("cuda:0"), _Named("cuda:0"), _Named("cuda:1"))] == [
+            True, False, True]
+        objective, fused, q0 = _objective(SCENES[0], speed=1.0)
+        DeviceNewton(fused)  # the CPU: no warning from the constructor either
+    warned = [r.getMessage() for r in caplog.records if r.name == dn.__name__]
+    assert len(warned) == 2 and "cuda:0" in warned[0] and "cuda:1" in warned[1]
+    assert all("tests/sim/test_sim_device_newton_cuda.py" in m and "never on a CUDA GPU" in m for m in warned)
+    monkeypatch.setattr(dn, "CUDA_VALIDATED", True)
+    assert not dn.warn_if_unvalidated(_Named("cuda:2"))
+
+
+class _Named:
+    """A stand-in for a warp CUDA device where the test has none: its name and ``is_cuda``."""
+
+    is_cuda = True
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __str__(self) -> str:
+        return self.name
+
+
 def test_the_gpus_configuration_emulated_on_the_cpu_runs_a_simulation_as_the_fused_kernel(monkeypatch):
     """Everything a GPU run sets at once, emulated on the CPU: copies of the workspace on another device, the
     schedule captured as graphs (and launched again), the matrices cleared an entry per thread, the blocked
