@@ -161,6 +161,13 @@ def _add_block(hess: wp.array(dtype=wp.float64), n_size: int, matrix_base: int, 
                             wp.atomic_add(hess, row + c * cols_p, h[r, c] * w)
 
 
+@wp.func
+def _past_pairs(st: StepData, k: int):
+    """Whether slot k of the pairs is past the step's pairs (a graph's pairs launches have a power of two of
+    threads: :func:`_pair_threads`)."""
+    return k >= st.pair_start[st.pair_start.shape[0] - 1]
+
+
 @wp.kernel
 def start_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island,
                  threshold: wp.array(dtype=wp.float64), trust_m: wp.array(dtype=wp.float64), limits_given: int,
@@ -345,8 +352,8 @@ def pairs_kernel(bd: Bodies, st: StepData, wk: Work, isl_info: Island):
     it, or frozen; in sub-steps those that can touch within the sub-step, ``isl_info.live``): pair contact with its
     frozen friction, the four blocks of the matrix where j moves."""
     k = wp.tid()  # slot k of the pairs ordered by island
-    if k >= st.pair_start[st.pair_start.shape[0] - 1] or isl_info.live[k] == 0:  # (past the step's pairs: a graph's
-        return  # launch has a power of two of threads)
+    if _past_pairs(st, k) or isl_info.live[k] == 0:
+        return
     p = st.pair_order[k]
     isl = isl_info.object_island[st.obj_i[p]]
     mode = isl_info.mode[isl]
@@ -633,7 +640,7 @@ def substep_pairs_kernel(st: StepData, ss: Substeps, isl_info: Island):
     """Slot k of the pairs, of an island starting a sub-step: whether its pair can touch within the sub-step
     (``isl_info.live``) and then its start data (:func:`data_gen.sim.fused_newton.pair_start_live`)."""
     k = wp.tid()
-    if k >= st.pair_start[st.pair_start.shape[0] - 1]:
+    if _past_pairs(st, k):
         return
     p = st.pair_order[k]
     isl = isl_info.object_island[st.obj_i[p]]
@@ -714,7 +721,7 @@ def substep_pair_forces_kernel(bd: Bodies, st: StepData, wk: Work, ss: Substeps,
     """Slot k of the pairs, of an island whose sub-step was solved: its pair's force and normal into row j, zero
     unless it is live and touches (:func:`data_gen.sim.fused_newton.live_pair_force`)."""
     k = wp.tid()
-    if k >= st.pair_start[st.pair_start.shape[0] - 1]:
+    if _past_pairs(st, k):
         return
     p = st.pair_order[k]
     if isl_info.mode[isl_info.object_island[st.obj_i[p]]] == NOTHING:
@@ -740,7 +747,7 @@ def substep_pair_sums_kernel(st: StepData, ss: Substeps, isl_info: Island, j: in
     """Slot k of the pairs, of an island whose sub-step was solved: its live pair's force added to row j of its
     group's sums (atomically: a group's pairs are slots of one island, added in slot order on the CPU)."""
     k = wp.tid()
-    if k >= st.pair_start[st.pair_start.shape[0] - 1] or isl_info.live[k] == 0:
+    if _past_pairs(st, k) or isl_info.live[k] == 0:
         return
     p = st.pair_order[k]
     if isl_info.mode[isl_info.object_island[st.obj_i[p]]] == NOTHING:
